@@ -1,0 +1,121 @@
+//! The number type the core computes in.
+//!
+//! Every algorithm in the core is written once, generic over [`Real`]. `f32` is what runs on
+//! the Cortex-M7's single-precision FPU; `f64` is the host reference that the f32 results are
+//! checked against. Only IEEE-754 operations that are correctly rounded on every target are
+//! used (+, −, ×, ÷, comparisons): no fused multiply–add and no transcendental functions in
+//! the loop, so the f32 core gives bit-identical results on the host and on the target.
+
+use core::fmt::Debug;
+use core::ops::{Add, AddAssign, Div, Mul, MulAssign, Neg, Sub, SubAssign};
+
+/// A real number type for the loop-rate core.
+pub trait Real:
+    Copy
+    + Debug
+    + Default
+    + PartialOrd
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+    + Div<Output = Self>
+    + Neg<Output = Self>
+    + AddAssign
+    + SubAssign
+    + MulAssign
+{
+    /// 0
+    const ZERO: Self;
+    /// 1
+    const ONE: Self;
+    /// Conversion from a configuration value (done once, outside the loop).
+    fn from_f64(x: f64) -> Self;
+    /// Conversion for reporting.
+    fn to_f64(self) -> f64;
+    /// Conversion of a DAC/ADC code.
+    fn from_i32(x: i32) -> Self;
+    /// Round half away from zero and saturate to `i32` (NaN gives 0).
+    fn round_i32(self) -> i32;
+    /// False for NaN and ±∞.
+    fn is_finite(self) -> bool;
+
+    /// |x|
+    #[inline(always)]
+    fn abs(self) -> Self {
+        if self < Self::ZERO {
+            -self
+        } else {
+            self
+        }
+    }
+    /// The value limited to `[lo, hi]`; a NaN becomes `lo`.
+    #[inline(always)]
+    fn clamp_to(self, lo: Self, hi: Self) -> Self {
+        if self > hi {
+            hi
+        } else if self >= lo {
+            self
+        } else {
+            lo
+        }
+    }
+}
+
+impl Real for f32 {
+    const ZERO: Self = 0.0;
+    const ONE: Self = 1.0;
+    #[inline(always)]
+    fn from_f64(x: f64) -> Self {
+        x as f32
+    }
+    #[inline(always)]
+    fn to_f64(self) -> f64 {
+        self as f64
+    }
+    #[inline(always)]
+    fn from_i32(x: i32) -> Self {
+        x as f32
+    }
+    #[inline(always)]
+    fn round_i32(self) -> i32 {
+        // `as` saturates and maps NaN to 0: no undefined behaviour, no panic.
+        if self >= 0.0 {
+            (self + 0.5) as i32
+        } else {
+            (self - 0.5) as i32
+        }
+    }
+    #[inline(always)]
+    fn is_finite(self) -> bool {
+        f32::is_finite(self)
+    }
+}
+
+impl Real for f64 {
+    const ZERO: Self = 0.0;
+    const ONE: Self = 1.0;
+    #[inline(always)]
+    fn from_f64(x: f64) -> Self {
+        x
+    }
+    #[inline(always)]
+    fn to_f64(self) -> f64 {
+        self
+    }
+    #[inline(always)]
+    fn from_i32(x: i32) -> Self {
+        x as f64
+    }
+    #[inline(always)]
+    fn round_i32(self) -> i32 {
+        if self >= 0.0 {
+            (self + 0.5) as i32
+        } else {
+            (self - 0.5) as i32
+        }
+    }
+    #[inline(always)]
+    fn is_finite(self) -> bool {
+        f64::is_finite(self)
+    }
+}
