@@ -1,0 +1,1221 @@
+//! The per-sample entry point: [`Controller::step`], called by the firmware's interrupt and by
+//! the host simulation alike, with the DIVE and SVE sequencers behind it.
+//!
+//! ## One sample
+//! ```text
+//! D_k ─▶ clamp/hold ─▶ Z_k = U_k − D_k ─▶ prefilters (Z: first-order hold, U: zero-order hold)
+//!     ─▶ w = (Ms² + Cs + K)Z/Λ − (Cs + K)U/Λ,  φ = [−sZ/Λ, z₀ − Z/Λ, 1]
+//!     ─▶ mode: contact detector / estimator / depth controller / excitation / sequencer
+//!     ─▶ U_{k+1} on the DAC grid, X, Y ─▶ the board's DACs (held until the next sample)
+//! ```
+//! `U_k` is the value the previous step returned: the DAC held it over the period that ends at
+//! the sample, so the pair (U_k, D_k) describes the same instant. The w of (13) and (16) is the
+//! same signal, `M·Z̈ − K·D − C·Ḋ` filtered, written in Z and U because Z is smooth and U is a
+//! known staircase (see [`crate::prefilter`]).
+//!
+//! ## Regressors
+//! * SVE (16): `φ = [−sZ/Λ, z₀ − Z/Λ, 1]`, `θ = [c, k, k·(h − z₀)]`. The reference height z₀
+//!   (the contact height found when the scan started) only centres the position regressor so
+//!   that f32 keeps precision; `ĥ = z₀ + θ̂₃/θ̂₂`.
+//! * DIVE, paper (13): `φ = [s·δ/Λ, δ/Λ] = [−sZ/Λ, h − Z/Λ]` with `h` from the contact detector
+//!   (for constant h, `h/Λ = h` once the filter has settled).
+//! * DIVE, offset: the SVE regressor with z₀ = h. For a fully submerged sphere the element bed
+//!   pushes with `Σkᵢ(hᵢ − sᵢ − Z)`, an offset the paper's form cannot represent (it is what
+//!   correction (32) undoes afterwards); identifying it gives k without correction and the
+//!   footprint's mean height from the dynamics instead of from the threshold crossing.
+//!
+//! Everything below is straight-line arithmetic over fixed-size arrays: no allocation, no
+//! blocking, no panics (indices are loop counters over const-generic arrays).
+
+use crate::config::{Config, ConfigError, DiveRegressor, SveRegressor};
+use crate::contact::{ContactDetector, ContactParams, ContactState};
+use crate::depth::{DepthController, DepthParams};
+use crate::estimator::{Estimator, EstimatorParams, UpdateInfo};
+use crate::excitation::{Excitation, ExcitationParams, SineTable, Tone};
+use crate::geometry::mean_sag;
+use crate::prefilter::HighPass;
+use crate::regressor::{Regressor, RegressorParams};
+use crate::units;
+
+/// Bits of the status word returned with every step.
+pub mod status {
+    /// The contact of the current tap or scan is confirmed.
+    pub const CONTACT: u32 = 1 << 0;
+    /// The excitation envelope is above zero.
+    pub const EXCITING: u32 = 1 << 1;
+    /// The estimator updated this sample.
+    pub const ESTIMATING: u32 = 1 << 2;
+    /// A record (tap or pixel) is waiting in [`super::Controller::take_record`].
+    pub const RECORD_READY: u32 = 1 << 3;
+    /// The sequence has finished.
+    pub const DONE: u32 = 1 << 4;
+    /// D was not finite: the last valid D was used and the estimator skipped.
+    pub const INPUT_INVALID: u32 = 1 << 5;
+    /// D was at or beyond the ADC's full scale (clamped); the estimator skipped.
+    pub const INPUT_SATURATED: u32 = 1 << 6;
+    /// U was clamped to the DAC's range.
+    pub const U_SATURATED: u32 = 1 << 7;
+    /// The depth controller is at an output limit.
+    pub const DEPTH_SATURATED: u32 = 1 << 8;
+    /// tr P is at R₀ (forgetting paused).
+    pub const COV_AT_BOUND: u32 = 1 << 9;
+    /// A parameter was projected onto its bound.
+    pub const PROJECTED: u32 = 1 << 10;
+    /// The estimator rejected an update and reset P.
+    pub const EST_RESET: u32 = 1 << 11;
+    /// A tap found no contact within its travel.
+    pub const NO_CONTACT: u32 = 1 << 12;
+    /// The dwell was too short for settle + read-out (slow approach).
+    pub const SHORT_DWELL: u32 = 1 << 13;
+    /// Shift of the phase code (see [`super::Phase`]) in the status word.
+    pub const PHASE_SHIFT: u32 = 24;
+}
+
+/// Which experiment runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    /// Dynamic indentation viscoelastic mode.
+    Dive,
+    /// Scanning viscoelastic mode.
+    Sve,
+}
+
+/// Commands from the host.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Command {
+    /// Start a mode from its beginning.
+    Start(Mode),
+    /// Stop: excitation off, U held, idle.
+    Stop,
+}
+
+/// Where the sequencer is (also bits 24.. of the status word).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Phase {
+    /// Holding U, nothing running.
+    Idle = 0,
+    /// Lateral move to the next tap or to the scan start, tip clear of the sample.
+    Move = 1,
+    /// Lowering U until the contact detector confirms contact.
+    Approach = 2,
+    /// DIVE: lowering further to the indentation depth.
+    Indent = 3,
+    /// DIVE: holding the depth with the excitation on; the estimator runs.
+    Dwell = 4,
+    /// Raising U clear of the sample.
+    Retract = 5,
+    /// DIVE: waiting for the tap's time slot to end.
+    Wait = 6,
+    /// SVE: at the first line's start, depth and estimates settling.
+    Settle = 7,
+    /// SVE: forward line.
+    Forward = 8,
+    /// SVE: backward line.
+    Backward = 9,
+    /// SVE: moving to the next line at the line start.
+    Turn = 10,
+    /// The sequence finished.
+    Done = 11,
+}
+
+/// The outputs of one sample.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepOut<T> {
+    /// U for the next period (m), on the DAC grid.
+    pub u_m: T,
+    /// Signed DAC code of U relative to mid-scale.
+    pub u_code: i32,
+    /// Lateral setpoint x (m), on the lateral DAC grid.
+    pub x_m: T,
+    /// Lateral setpoint y (m).
+    pub y_m: T,
+    /// Signed DAC code of x relative to mid-scale.
+    pub x_code: i32,
+    /// Signed DAC code of y relative to mid-scale.
+    pub y_code: i32,
+    /// Status bits ([`status`]) and the phase code.
+    pub status: u32,
+}
+
+/// The estimates of one DIVE tap: aggregates over the tip, averaged over the read-out window.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TapRecord<T> {
+    /// Tap number in the sequence.
+    pub index: u32,
+    /// Grid column.
+    pub ix: u16,
+    /// Grid row.
+    pub iy: u16,
+    /// Lateral position (m).
+    pub x_m: T,
+    /// Lateral position (m).
+    pub y_m: T,
+    /// Height at first contact, Z(t₁) (m).
+    pub contact_height_m: T,
+    /// Aggregate damping ĉ (N·s/m).
+    pub c_ns_per_m: T,
+    /// Aggregate spring constant k̂ (N/m).
+    pub k_n_per_m: T,
+    /// θ̂₃ = k̂·(h_bed − z₀) of the offset regressor (N); 0 for the paper's.
+    pub offset_n: T,
+    /// z₀ = h − indent depth, the centre of the offset regressor (m).
+    pub centre_m: T,
+    /// Mean depth δ = h − Z over the read-out (m).
+    pub depth_m: T,
+    /// Regressor the tap used.
+    pub regressor: DiveRegressor,
+    /// Status bits gathered over the tap (NO_CONTACT, SHORT_DWELL, faults).
+    pub flags: u32,
+    /// Samples averaged.
+    pub samples: u32,
+}
+
+impl<T: crate::Real> TapRecord<T> {
+    /// The identified height of the element bed under the tip: z₀ + θ̂₃/k̂ for the offset form
+    /// (the k-weighted mean of hᵢ − sᵢ, before adding the tip's mean sag), h for the paper's.
+    pub fn bed_height_m(&self) -> f64 {
+        match self.regressor {
+            DiveRegressor::Paper => self.contact_height_m.to_f64(),
+            DiveRegressor::Offset => {
+                self.centre_m.to_f64() + self.offset_n.to_f64() / self.k_n_per_m.to_f64()
+            }
+        }
+    }
+}
+
+/// The estimates of one SVE pixel (one direction of one line), averaged over the pixel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PixelRecord<T> {
+    /// Line number.
+    pub line: u16,
+    /// Pixel along the line, 0 at x0.
+    pub pixel: u16,
+    /// Forward (x0 → x1) or backward.
+    pub forward: bool,
+    /// Mean lateral position (m).
+    pub x_m: T,
+    /// Lateral position (m).
+    pub y_m: T,
+    /// Aggregate damping ĉ (N·s/m).
+    pub c_ns_per_m: T,
+    /// Aggregate spring constant k̂ (N/m).
+    pub k_n_per_m: T,
+    /// ĥ (m), the k-weighted mean of hᵢ − sᵢ under the tip: z₀ + θ̂₃/θ̂₂ for the paper's
+    /// regressor, Z + F/k̂ for the decoupled one.
+    pub bed_height_m: T,
+    /// Mean of ĥ − Z, the depth the controller holds (m).
+    pub depth_m: T,
+    /// Status bits gathered over the pixel.
+    pub flags: u32,
+    /// Samples averaged.
+    pub samples: u32,
+}
+
+/// A finished tap or pixel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Record<T> {
+    /// DIVE.
+    Tap(TapRecord<T>),
+    /// SVE.
+    Pixel(PixelRecord<T>),
+}
+
+/// A DAC's grid: codes relative to mid-scale.
+#[derive(Clone, Copy, Debug)]
+struct Dac<T> {
+    mid: T,
+    lsb: T,
+    inv_lsb: T,
+    code_min: i32,
+    code_max: i32,
+}
+
+impl<T: crate::Real> Dac<T> {
+    fn new(min_nm: f64, max_nm: f64, bits: u32) -> Self {
+        let half = 1i64 << (bits - 1);
+        let lsb = (max_nm - min_nm) / (2 * half) as f64;
+        Self {
+            mid: T::from_f64(0.5 * (min_nm + max_nm)),
+            lsb: T::from_f64(lsb),
+            inv_lsb: T::from_f64(1.0 / lsb),
+            code_min: -half as i32,
+            code_max: (half - 1) as i32,
+        }
+    }
+
+    /// The nearest code (clamped) and its value; `true` when clamped.
+    #[inline(always)]
+    fn quantize(&self, v: T) -> (i32, T, bool) {
+        let raw = ((v - self.mid) * self.inv_lsb).round_i32();
+        let code = if raw > self.code_max {
+            self.code_max
+        } else if raw < self.code_min {
+            self.code_min
+        } else {
+            raw
+        };
+        (code, self.mid + T::from_i32(code) * self.lsb, code != raw)
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+struct DiveParams<T> {
+    nx: u32,
+    taps: u32,
+    x0: T,
+    y0: T,
+    dx: T,
+    dy: T,
+    tap_samples: u32,
+    move_samples: u32,
+    inv_move: T,
+    indent: T,
+    settle_samples: u32,
+    readout_samples: u32,
+    ramp_samples: u32,
+    regressor: DiveRegressor,
+    est2: EstimatorParams<T, 2>,
+    est3: EstimatorParams<T, 3>,
+    exc: ExcitationParams<T>,
+    theta0: [T; 3],
+    retract_speed: f64,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct SveParams<T> {
+    regressor: SveRegressor,
+    lines: u32,
+    pixels: u32,
+    x0: T,
+    x1: T,
+    y0: T,
+    dy: T,
+    half_samples: u32,
+    inv_half: T,
+    turn_samples: u32,
+    inv_turn: T,
+    settle_samples: u32,
+    depth_eff: T,
+    depth: DepthParams<T>,
+    est: EstimatorParams<T, 3>,
+    est2: EstimatorParams<T, 2>,
+    highpass: T,
+    exc: ExcitationParams<T>,
+    theta0: [T; 3],
+}
+
+/// Everything the loop reads, in internal units, computed once from a validated [`Config`].
+#[derive(Clone, Copy, Debug)]
+struct Params<T> {
+    to_internal: T,
+    to_m: T,
+    damping_to_si: T,
+    reg: RegressorParams<T>,
+    contact: ContactParams<T>,
+    d_max: T,
+    u_dac: Dac<T>,
+    xy_dac: Dac<T>,
+    u_min: T,
+    approach_step: T,
+    retract_step: T,
+    clearance: T,
+    max_travel: T,
+    u_start: T,
+    dive: DiveParams<T>,
+    sve: SveParams<T>,
+}
+
+/// Sums for a read-out average. Values are accumulated as deviations from the first sample so
+/// that f32 keeps its precision over tens of thousands of samples.
+#[derive(Clone, Copy, Debug, Default)]
+struct Accumulator<T> {
+    base: [T; 5],
+    sum: [T; 5],
+    n: u32,
+    flags: u32,
+}
+
+impl<T: crate::Real> Accumulator<T> {
+    #[inline(always)]
+    fn add(&mut self, v: [T; 5], flags: u32) {
+        if self.n == 0 {
+            self.base = v;
+        }
+        for i in 0..5 {
+            self.sum[i] += v[i] - self.base[i];
+        }
+        self.n += 1;
+        self.flags |= flags;
+    }
+
+    fn mean(&self) -> [T; 5] {
+        let mut m = self.base;
+        if self.n > 0 {
+            let inv = T::ONE / T::from_i32(self.n as i32);
+            for i in 0..5 {
+                m[i] += self.sum[i] * inv;
+            }
+        }
+        m
+    }
+
+    fn clear(&mut self) {
+        *self = Self::default();
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+struct DiveState<T> {
+    tap: u32,
+    t: u32,
+    dwell_end: u32,
+    estimate_from: u32,
+    readout_from: u32,
+    u_cmd: T,
+    u_safe: T,
+    approach_from: T,
+    x_from: T,
+    y_from: T,
+    x_to: T,
+    y_to: T,
+    h: T,
+    z0: T,
+    theta_warm: [T; 3],
+    acc: Accumulator<T>,
+    flags: u32,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct SveState<T> {
+    line: u32,
+    t: u32,
+    z0: T,
+    d_free: T,
+    hp: [HighPass<T>; 3],
+    u_cmd: T,
+    approach_from: T,
+    pixel: u32,
+    next_boundary: u32,
+    acc: Accumulator<T>,
+    x_acc: T,
+}
+
+/// The identification core's per-sample state machine.
+#[derive(Clone, Debug)]
+pub struct Controller<T> {
+    p: Params<T>,
+    cfg: Config,
+    mode: Option<Mode>,
+    phase: Phase,
+    u: T,
+    u_code: i32,
+    x: T,
+    y: T,
+    x_code: i32,
+    y_code: i32,
+    d_last: T,
+    reg: Regressor<T>,
+    contact: ContactDetector<T>,
+    exc: Excitation<T>,
+    est2: Estimator<T, 2>,
+    est3: Estimator<T, 3>,
+    depth: DepthController<T>,
+    dive: DiveState<T>,
+    sve: SveState<T>,
+    record: Option<Record<T>>,
+    samples: u64,
+}
+
+fn samples(seconds: f64, fs: f64) -> u32 {
+    let n = seconds * fs + 0.5;
+    if n < 1.0 {
+        1
+    } else {
+        n as u32
+    }
+}
+
+impl<T: SineTable> Controller<T> {
+    /// Validate `cfg` and build a controller, idle, with U at the approach start.
+    pub fn new(cfg: &Config) -> Result<Self, ConfigError> {
+        cfg.validate()?;
+        let fs = cfg.sample_rate_hz;
+        let t = |v: f64| T::from_f64(v);
+        let nm = 1.0 / units::LENGTH;
+        let period_us = 1e6 / fs;
+        let r_nm = cfg.tip_radius_m * nm;
+
+        let u_span = cfg.limits.u_max_m - cfg.limits.u_min_m;
+        let exc = |e: &crate::config::ExcitationConfig| ExcitationParams {
+            tone1: Tone::new(e.f1_hz, fs, t(e.a1_m * nm)),
+            tone2: Tone::new(e.f2_hz, fs, t(e.a2_m * nm)),
+            ramp_step: t(1.0 / (e.ramp_s * fs)),
+        };
+
+        let d = &cfg.dive;
+        let n_d = cfg.nominal_dive;
+        let k_d = n_d.k_n_per_m / units::STIFFNESS;
+        let c_d = n_d.c_ns_per_m / units::DAMPING;
+        let theta0_dive = match d.regressor {
+            // The paper's form identifies k·(δ − R/3)/δ (Appendix A).
+            DiveRegressor::Paper => {
+                let delta = d.indent_depth_m * nm;
+                [
+                    t(c_d),
+                    t(k_d * (delta - mean_sag(r_nm, delta)) / delta),
+                    T::ZERO,
+                ]
+            }
+            // Centred at z₀ = h − indent: θ₃ = k·(h_bed − z₀) ≈ k·(indent − R/3).
+            DiveRegressor::Offset => [
+                t(c_d),
+                t(k_d),
+                t(k_d * (d.indent_depth_m * nm - r_nm / 3.0)),
+            ],
+        };
+        let s = &cfg.sve;
+        let n_s = cfg.nominal_sve;
+        let k_s = n_s.k_n_per_m / units::STIFFNESS;
+        let sag_ref = mean_sag(r_nm, s.depth_ref_m * nm);
+        let half = (s.line_period_s - s.turn_s) / 2.0;
+        let exc_margin_sve = (s.excitation.a1_m + s.excitation.a2_m) * nm;
+
+        let p = Params {
+            to_internal: t(nm),
+            to_m: t(units::LENGTH),
+            damping_to_si: t(units::DAMPING),
+            reg: RegressorParams::new(
+                cfg.cantilever.m_kg / units::MASS,
+                cfg.cantilever.c_ns_per_m / units::DAMPING,
+                cfg.cantilever.k_n_per_m / units::STIFFNESS,
+                cfg.prefilter.lambda_s / units::TIME,
+                period_us,
+            ),
+            contact: ContactParams {
+                lowpass: t(
+                    1.0 - libm::exp(-2.0 * core::f64::consts::PI * cfg.contact.lowpass_hz / fs)
+                ),
+                gamma: t(cfg.contact.gamma_m * nm),
+                gamma_plus: t(cfg.contact.gamma_plus_m * nm),
+            },
+            d_max: t(cfg.limits.d_full_scale_m * nm),
+            u_dac: Dac::new(
+                cfg.limits.u_min_m * nm,
+                cfg.limits.u_max_m * nm,
+                cfg.limits.dac_bits,
+            ),
+            xy_dac: Dac::new(
+                cfg.limits.xy_min_m * nm,
+                cfg.limits.xy_max_m * nm,
+                cfg.limits.xy_dac_bits,
+            ),
+            u_min: t(cfg.limits.u_min_m * nm),
+            approach_step: t(cfg.approach.speed_m_per_s / fs * nm),
+            retract_step: t(cfg.approach.retract_speed_m_per_s / fs * nm),
+            clearance: t(cfg.approach.clearance_m * nm),
+            max_travel: t(cfg.approach.max_travel_m * nm),
+            u_start: t(cfg.approach.u_start_m * nm),
+            dive: DiveParams {
+                nx: d.nx,
+                taps: d.nx * d.ny,
+                x0: t(d.x0_m * nm),
+                y0: t(d.y0_m * nm),
+                dx: t(d.dx_m * nm),
+                dy: t(d.dy_m * nm),
+                tap_samples: samples(d.tap_s, fs),
+                move_samples: samples(d.move_s, fs),
+                inv_move: t(1.0 / samples(d.move_s, fs) as f64),
+                indent: t(d.indent_depth_m * nm),
+                settle_samples: samples(d.settle_s, fs),
+                readout_samples: samples(d.readout_s, fs),
+                ramp_samples: samples(d.excitation.ramp_s, fs),
+                regressor: d.regressor,
+                est2: d.estimator.params(fs, u_span),
+                est3: d.estimator.params(fs, u_span),
+                exc: exc(&d.excitation),
+                theta0: theta0_dive,
+                retract_speed: cfg.approach.retract_speed_m_per_s / fs * nm,
+            },
+            sve: SveParams {
+                regressor: s.regressor,
+                lines: s.lines,
+                pixels: s.pixels,
+                x0: t(s.x0_m * nm),
+                x1: t(s.x1_m * nm),
+                y0: t(s.y0_m * nm),
+                dy: t(s.dy_m * nm),
+                half_samples: samples(half, fs),
+                inv_half: t(1.0 / samples(half, fs) as f64),
+                turn_samples: samples(s.turn_s, fs),
+                inv_turn: t(1.0 / samples(s.turn_s, fs) as f64),
+                settle_samples: samples(s.settle_s, fs),
+                depth_eff: t((s.depth_ref_m * nm) - sag_ref),
+                depth: DepthParams {
+                    ki_period: t(s.ki_per_s / fs),
+                    u_min: t(cfg.limits.u_min_m * nm + exc_margin_sve),
+                    u_max: t(cfg.limits.u_max_m * nm - exc_margin_sve),
+                },
+                est: s.estimator.params(fs, u_span),
+                est2: s.estimator.params(fs, u_span),
+                highpass: HighPass::coefficient(s.highpass_hz, fs),
+                exc: exc(&s.excitation),
+                // Centred at the slow tip position: θ₃ = k·(h_bed − Z_s), zero at first contact;
+                // the depth controller then takes it to k·(δ_ref − s̄).
+                theta0: [t(n_s.c_ns_per_m / units::DAMPING), t(k_s), T::ZERO],
+            },
+        };
+        let u0 = p.u_start;
+        let (u_code, u, _) = p.u_dac.quantize(u0);
+        let (x_code, x, _) = p.xy_dac.quantize(p.dive.x0);
+        let (y_code, y, _) = p.xy_dac.quantize(p.dive.y0);
+        let dive = DiveState {
+            tap: 0,
+            t: 0,
+            dwell_end: 0,
+            estimate_from: 0,
+            readout_from: 0,
+            u_cmd: u,
+            u_safe: u,
+            approach_from: u,
+            x_from: x,
+            y_from: y,
+            x_to: x,
+            y_to: y,
+            h: T::ZERO,
+            z0: T::ZERO,
+            theta_warm: p.dive.theta0,
+            acc: Accumulator::default(),
+            flags: 0,
+        };
+        let sve = SveState {
+            line: 0,
+            t: 0,
+            z0: T::ZERO,
+            d_free: T::ZERO,
+            hp: [HighPass::default(); 3],
+            u_cmd: u,
+            approach_from: u,
+            pixel: 0,
+            next_boundary: 0,
+            acc: Accumulator::default(),
+            x_acc: T::ZERO,
+        };
+        Ok(Self {
+            est2: Estimator::new(&p.dive.est2, [p.dive.theta0[0], p.dive.theta0[1]]),
+            est3: Estimator::new(&p.dive.est3, p.dive.theta0),
+            depth: DepthController::new(u),
+            p,
+            cfg: *cfg,
+            mode: None,
+            phase: Phase::Idle,
+            u,
+            u_code,
+            x,
+            y,
+            x_code,
+            y_code,
+            d_last: T::ZERO,
+            reg: Regressor::at_rest(u, u),
+            contact: ContactDetector::new(T::ZERO),
+            exc: Excitation::default(),
+            dive,
+            sve,
+            record: None,
+            samples: 0,
+        })
+    }
+
+    /// The validated configuration.
+    pub fn config(&self) -> &Config {
+        &self.cfg
+    }
+
+    /// The running mode, if any.
+    pub fn mode(&self) -> Option<Mode> {
+        self.mode
+    }
+
+    /// Where the sequencer is.
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    /// Samples stepped since construction.
+    pub fn samples(&self) -> u64 {
+        self.samples
+    }
+
+    /// The U currently applied (m).
+    pub fn u_m(&self) -> T {
+        self.u * self.p.to_m
+    }
+
+    /// Carry out a command from the host.
+    pub fn command(&mut self, cmd: Command) {
+        match cmd {
+            Command::Stop => {
+                self.mode = None;
+                self.phase = Phase::Idle;
+                self.exc.silence();
+            }
+            Command::Start(Mode::Dive) => {
+                self.mode = Some(Mode::Dive);
+                let p = &self.p.dive;
+                self.dive.tap = 0;
+                self.dive.t = 0;
+                self.dive.u_safe = self.p.u_start;
+                self.dive.u_cmd = self.p.u_start;
+                self.dive.x_from = self.x;
+                self.dive.y_from = self.y;
+                self.dive.x_to = p.x0;
+                self.dive.y_to = p.y0;
+                self.dive.theta_warm = p.theta0;
+                self.dive.flags = 0;
+                self.exc.silence();
+                self.phase = Phase::Move;
+            }
+            Command::Start(Mode::Sve) => {
+                self.mode = Some(Mode::Sve);
+                self.sve.line = 0;
+                self.sve.t = 0;
+                self.sve.u_cmd = self.p.u_start;
+                self.dive.x_from = self.x;
+                self.dive.y_from = self.y;
+                self.exc.silence();
+                self.phase = Phase::Move;
+            }
+        }
+    }
+
+    /// The finished tap or pixel, if one is waiting (status bit RECORD_READY).
+    pub fn take_record(&mut self) -> Option<Record<T>> {
+        self.record.take()
+    }
+
+    /// The current estimate in SI: aggregate ĉ (N·s/m), k̂ (N/m), and the bed height ĥ (m)
+    /// where the mode identifies it (SVE and DIVE offset), else the contact height.
+    pub fn estimates(&self) -> (T, T, T) {
+        let p = &self.p;
+        match self.mode {
+            Some(Mode::Dive) if p.dive.regressor == DiveRegressor::Paper => {
+                let th = self.est2.theta();
+                (th[0] * p.damping_to_si, th[1], self.dive.h * p.to_m)
+            }
+            Some(Mode::Dive) => {
+                let th = self.est3.theta();
+                (
+                    th[0] * p.damping_to_si,
+                    th[1],
+                    (self.dive.z0 + th[2] / th[1]) * p.to_m,
+                )
+            }
+            Some(Mode::Sve) | None if p.sve.regressor == SveRegressor::Decoupled => {
+                let th = self.est2.theta();
+                let force = p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
+                (
+                    th[0] * p.damping_to_si,
+                    th[1],
+                    (self.reg.z().x + force / th[1]) * p.to_m,
+                )
+            }
+            _ => {
+                let th = self.est3.theta();
+                (
+                    th[0] * p.damping_to_si,
+                    th[1],
+                    (self.sve.z0 + th[2] / th[1]) * p.to_m,
+                )
+            }
+        }
+    }
+
+    /// Read access to the three-parameter estimator (tests, telemetry).
+    pub fn estimator3(&self) -> &Estimator<T, 3> {
+        &self.est3
+    }
+
+    /// Read access to the two-parameter estimator (tests, telemetry).
+    pub fn estimator2(&self) -> &Estimator<T, 2> {
+        &self.est2
+    }
+
+    /// One loop sample: the measured deflection `d_m` (m) in, the next outputs out.
+    #[inline]
+    pub fn step(&mut self, d_m: T) -> StepOut<T> {
+        self.samples += 1;
+        let mut st = 0u32;
+        // Input conditioning: the ADC cannot exceed its full scale; a non-finite value (a bus
+        // glitch) is replaced by the last valid one. The estimator skips either.
+        let d_in = d_m * self.p.to_internal;
+        let d = if d_in.is_finite() {
+            if d_in > self.p.d_max || d_in < -self.p.d_max {
+                st |= status::INPUT_SATURATED;
+            }
+            d_in.clamp_to(-self.p.d_max, self.p.d_max)
+        } else {
+            st |= status::INPUT_INVALID;
+            self.d_last
+        };
+        self.d_last = d;
+        let z = self.u - d;
+        self.reg.update(&self.p.reg, self.u, z);
+        let input_ok = st & (status::INPUT_INVALID | status::INPUT_SATURATED) == 0;
+
+        let u_next = match self.mode {
+            Some(Mode::Dive) => self.dive_step(d, z, input_ok, &mut st),
+            Some(Mode::Sve) => self.sve_step(d, z, input_ok, &mut st),
+            None => self.u,
+        };
+        let (u_code, u, clamped) = self.p.u_dac.quantize(u_next);
+        if clamped {
+            st |= status::U_SATURATED;
+        }
+        self.u = u;
+        self.u_code = u_code;
+        if self.exc.envelope() > T::ZERO {
+            st |= status::EXCITING;
+        }
+        if self.record.is_some() {
+            st |= status::RECORD_READY;
+        }
+        st |= (self.phase as u32) << status::PHASE_SHIFT;
+        StepOut {
+            u_m: u * self.p.to_m,
+            u_code,
+            x_m: self.x * self.p.to_m,
+            y_m: self.y * self.p.to_m,
+            x_code: self.x_code,
+            y_code: self.y_code,
+            status: st,
+        }
+    }
+
+    #[inline(always)]
+    fn set_xy(&mut self, x: T, y: T) {
+        let (xc, xv, _) = self.p.xy_dac.quantize(x);
+        let (yc, yv, _) = self.p.xy_dac.quantize(y);
+        self.x = xv;
+        self.x_code = xc;
+        self.y = yv;
+        self.y_code = yc;
+    }
+
+    fn est_flags(info: UpdateInfo) -> u32 {
+        let mut f = status::ESTIMATING;
+        if info.at_bound {
+            f |= status::COV_AT_BOUND;
+        }
+        if info.projected {
+            f |= status::PROJECTED;
+        }
+        if info.reset {
+            f |= status::EST_RESET;
+        }
+        f
+    }
+
+    /// The lowered base during an approach; `None` when the travel limit is reached.
+    #[inline(always)]
+    fn approach_u(&self, u_cmd: T, from: T) -> Option<T> {
+        let u = u_cmd - self.p.approach_step;
+        if from - u > self.p.max_travel || u < self.p.u_min {
+            None
+        } else {
+            Some(u)
+        }
+    }
+
+    fn dive_step(&mut self, d: T, z: T, input_ok: bool, st: &mut u32) -> T {
+        let p = self.p.dive;
+        self.dive.t = self.dive.t.saturating_add(1);
+        let t = self.dive.t;
+        let mut u = self.dive.u_cmd;
+        match self.phase {
+            Phase::Move => {
+                let f = T::from_i32(t.min(p.move_samples) as i32) * p.inv_move;
+                let s = &self.dive;
+                let (x, y) = (
+                    s.x_from + (s.x_to - s.x_from) * f,
+                    s.y_from + (s.y_to - s.y_from) * f,
+                );
+                self.set_xy(x, y);
+                if t >= p.move_samples {
+                    self.contact = ContactDetector::new(d);
+                    self.dive.approach_from = u;
+                    self.phase = Phase::Approach;
+                }
+            }
+            Phase::Approach => {
+                let state = self.contact.update(&self.p.contact, d, z);
+                match self.approach_u(u, self.dive.approach_from) {
+                    _ if matches!(state, ContactState::Confirmed { .. }) => {
+                        if let ContactState::Confirmed { h } = state {
+                            self.dive.h = h;
+                        }
+                        self.phase = Phase::Indent;
+                    }
+                    Some(next) => u = next,
+                    None => {
+                        self.dive.flags |= status::NO_CONTACT;
+                        self.finish_tap(false);
+                    }
+                }
+            }
+            Phase::Indent => {
+                *st |= status::CONTACT;
+                let depth = self.dive.h - self.reg.z().x;
+                if depth >= p.indent {
+                    self.start_dwell(t, u);
+                } else {
+                    match self.approach_u(u, self.dive.approach_from) {
+                        Some(next) => u = next,
+                        None => {
+                            self.dive.flags |= status::NO_CONTACT;
+                            self.finish_tap(false);
+                        }
+                    }
+                }
+            }
+            Phase::Dwell => {
+                *st |= status::CONTACT;
+                if t >= self.dive.estimate_from && input_ok {
+                    let h = self.dive.h;
+                    let w = self.reg.w(&self.p.reg);
+                    let (info, th) = match p.regressor {
+                        DiveRegressor::Paper => {
+                            let info = self.est2.update(&p.est2, w, &self.reg.phi_dive(h));
+                            let th = self.est2.theta();
+                            (info, [th[0], th[1], T::ZERO])
+                        }
+                        // Centred at the target tip position z₀ = h − indent (fixed for the tap).
+                        DiveRegressor::Offset => {
+                            let info =
+                                self.est3
+                                    .update(&p.est3, w, &self.reg.phi_sve(self.dive.z0));
+                            (info, self.est3.theta())
+                        }
+                    };
+                    let f = Self::est_flags(info);
+                    *st |= f;
+                    if t >= self.dive.readout_from {
+                        self.dive
+                            .acc
+                            .add([th[0], th[1], th[2], h - self.reg.z().x, self.dive.z0], f);
+                    }
+                }
+                if t + p.ramp_samples >= self.dive.dwell_end {
+                    self.exc.set_on(false);
+                }
+                if t >= self.dive.dwell_end {
+                    self.finish_tap(true);
+                }
+            }
+            Phase::Retract => {
+                u += self.p.retract_step;
+                if u >= self.dive.u_safe {
+                    u = self.dive.u_safe;
+                    self.phase = Phase::Wait;
+                }
+            }
+            Phase::Wait if t >= p.tap_samples => self.next_tap(),
+            _ => {}
+        }
+        self.dive.u_cmd = u;
+        u + self.exc.next(&p.exc)
+    }
+
+    fn start_dwell(&mut self, t: u32, u_hold: T) {
+        let p = self.p.dive;
+        // The retract from here to clearance above the contact must fit in the tap's slot.
+        let dist = (self.dive.h + self.p.clearance - u_hold).to_f64();
+        let retract = if dist > 0.0 {
+            (dist / p.retract_speed) as u32 + 2
+        } else {
+            2
+        };
+        let end = p.tap_samples.saturating_sub(retract);
+        let estimate_from = t + p.ramp_samples + p.settle_samples;
+        let readout_from = end.saturating_sub(p.ramp_samples + p.readout_samples);
+        if readout_from <= estimate_from {
+            self.dive.flags |= status::SHORT_DWELL;
+        }
+        self.dive.dwell_end = end.max(estimate_from + p.ramp_samples + p.readout_samples);
+        self.dive.estimate_from = estimate_from;
+        self.dive.readout_from = readout_from.max(estimate_from);
+        self.dive.acc.clear();
+        self.dive.z0 = self.dive.h - p.indent;
+        match p.regressor {
+            DiveRegressor::Paper => {
+                let w = self.dive.theta_warm;
+                self.est2.restart(&p.est2, [w[0], w[1]]);
+            }
+            DiveRegressor::Offset => self.est3.restart(&p.est3, self.dive.theta_warm),
+        }
+        self.exc.set_on(true);
+        self.phase = Phase::Dwell;
+    }
+
+    fn finish_tap(&mut self, contact: bool) {
+        let p = self.p.dive;
+        let s = &mut self.dive;
+        let m = s.acc.mean();
+        let to_m = self.p.to_m;
+        let tap = s.tap;
+        let rec = TapRecord {
+            index: tap,
+            ix: (tap % p.nx) as u16,
+            iy: (tap / p.nx) as u16,
+            x_m: self.x * to_m,
+            y_m: self.y * to_m,
+            contact_height_m: if contact { s.h * to_m } else { T::ZERO },
+            c_ns_per_m: m[0] * self.p.damping_to_si,
+            k_n_per_m: m[1],
+            offset_n: m[2] * to_m,
+            centre_m: m[4] * to_m,
+            depth_m: m[3] * to_m,
+            regressor: p.regressor,
+            flags: s.flags | s.acc.flags,
+            samples: s.acc.n,
+        };
+        if contact && s.acc.n > 0 {
+            // Warm start of the next tap: neighbours are alike.
+            s.theta_warm = [m[0], m[1], m[2]];
+            s.u_safe = s.h + self.p.clearance;
+        } else {
+            let up = s.u_cmd + self.p.clearance;
+            if up > s.u_safe {
+                s.u_safe = up;
+            }
+        }
+        self.record = Some(Record::Tap(rec));
+        self.exc.set_on(false);
+        self.phase = Phase::Retract;
+    }
+
+    fn next_tap(&mut self) {
+        let p = self.p.dive;
+        let s = &mut self.dive;
+        s.tap += 1;
+        s.t = 0;
+        s.flags = 0;
+        s.acc.clear();
+        if s.tap >= p.taps {
+            self.phase = Phase::Done;
+            self.mode = None;
+            return;
+        }
+        let ix = s.tap % p.nx;
+        let iy = s.tap / p.nx;
+        s.x_from = self.x;
+        s.y_from = self.y;
+        s.x_to = p.x0 + p.dx * T::from_i32(ix as i32);
+        s.y_to = p.y0 + p.dy * T::from_i32(iy as i32);
+        self.phase = Phase::Move;
+    }
+
+    fn sve_step(&mut self, d: T, z: T, input_ok: bool, st: &mut u32) -> T {
+        let p = self.p.sve;
+        self.sve.t = self.sve.t.saturating_add(1);
+        let t = self.sve.t;
+        match self.phase {
+            Phase::Move => {
+                let f = T::from_i32(t.min(self.p.dive.move_samples) as i32) * self.p.dive.inv_move;
+                let s = &self.dive;
+                let (x, y) = (
+                    s.x_from + (p.x0 - s.x_from) * f,
+                    s.y_from + (p.y0 - s.y_from) * f,
+                );
+                self.set_xy(x, y);
+                if t >= self.p.dive.move_samples {
+                    self.contact = ContactDetector::new(d);
+                    self.sve.d_free = d;
+                    self.sve.approach_from = self.sve.u_cmd;
+                    self.phase = Phase::Approach;
+                }
+                self.sve.u_cmd
+            }
+            Phase::Approach => {
+                let state = self.contact.update(&self.p.contact, d, z);
+                if let ContactState::Confirmed { h } = state {
+                    self.sve.z0 = h;
+                    self.est3.restart(&p.est, p.theta0);
+                    self.est2.restart(&p.est2, [p.theta0[0], p.theta0[1]]);
+                    let w = self.reg.w(&self.p.reg);
+                    let phi = self.reg.phi_sve(h);
+                    self.sve.hp = [
+                        HighPass::at_rest(w),
+                        HighPass::at_rest(phi[0]),
+                        HighPass::at_rest(phi[1]),
+                    ];
+                    self.depth = DepthController::new(self.sve.u_cmd);
+                    self.exc.set_on(true);
+                    self.sve.t = 0;
+                    self.phase = Phase::Settle;
+                } else {
+                    match self.approach_u(self.sve.u_cmd, self.sve.approach_from) {
+                        Some(u) => self.sve.u_cmd = u,
+                        None => {
+                            *st |= status::NO_CONTACT;
+                            self.phase = Phase::Retract;
+                        }
+                    }
+                }
+                self.sve.u_cmd
+            }
+            Phase::Settle | Phase::Forward | Phase::Backward | Phase::Turn => {
+                *st |= status::CONTACT;
+                let mut f = 0;
+                // The contact detector's low-pass keeps running: it gives the slow force.
+                self.contact.update(&self.p.contact, d, z);
+                let w = self.reg.w(&self.p.reg);
+                let phi = self.reg.phi_sve(self.sve.z0);
+                // θ̂₂ ≥ k_min > 0 by projection, so the divisions are safe.
+                let (th, h_hat, depth) = match p.regressor {
+                    SveRegressor::Decoupled => {
+                        // The high-passes run on every sample to keep their state continuous.
+                        let hp = &mut self.sve.hp;
+                        let wh = hp[0].update(p.highpass, w);
+                        let phi_h = [
+                            hp[1].update(p.highpass, phi[0]),
+                            hp[2].update(p.highpass, phi[1]),
+                        ];
+                        if input_ok {
+                            f = Self::est_flags(self.est2.update(&p.est2, wh, &phi_h));
+                        }
+                        let th = self.est2.theta();
+                        let force =
+                            self.p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
+                        let depth = force / th[1];
+                        ([th[0], th[1], T::ZERO], self.reg.z().x + depth, depth)
+                    }
+                    SveRegressor::Paper => {
+                        if input_ok {
+                            f = Self::est_flags(self.est3.update(&p.est, w, &phi));
+                        }
+                        let th = self.est3.theta();
+                        let h = self.sve.z0 + th[2] / th[1];
+                        (th, h, h - z)
+                    }
+                };
+                let (u_d, sat) = self.depth.update(&p.depth, p.depth_eff - depth);
+                if sat {
+                    f |= status::DEPTH_SATURATED;
+                }
+                *st |= f;
+                self.sve.u_cmd = u_d;
+                self.sve_sequence(t, [th[0], th[1], h_hat, depth, T::ZERO], f);
+                u_d + self.exc.next(&p.exc)
+            }
+            Phase::Retract => {
+                let u = self.sve.u_cmd + self.p.retract_step;
+                self.sve.u_cmd = u;
+                if u >= self.sve.z0 + self.p.clearance || u >= self.p.u_start {
+                    self.phase = Phase::Done;
+                    self.mode = None;
+                }
+                // Let the excitation ramp out while retracting.
+                u + self.exc.next(&p.exc)
+            }
+            _ => self.sve.u_cmd,
+        }
+    }
+
+    /// The raster: settle, then forward, backward, turn per line; pixel bins along the way.
+    #[inline(always)]
+    fn sve_sequence(&mut self, t: u32, v: [T; 5], flags: u32) {
+        let p = self.p.sve;
+        match self.phase {
+            Phase::Settle if t >= p.settle_samples => self.begin_line(true),
+            Phase::Forward | Phase::Backward => {
+                let forward = self.phase == Phase::Forward;
+                let f = T::from_i32(t as i32) * p.inv_half;
+                let x = if forward {
+                    p.x0 + (p.x1 - p.x0) * f
+                } else {
+                    p.x1 + (p.x0 - p.x1) * f
+                };
+                let y = self.y;
+                self.set_xy(x, y);
+                self.sve.acc.add(v, flags);
+                self.sve.x_acc += self.x - p.x0;
+                if t >= self.sve.next_boundary {
+                    self.finish_pixel(forward);
+                    self.sve.pixel += 1;
+                    if self.sve.pixel >= p.pixels {
+                        if forward {
+                            self.begin_line(false);
+                        } else {
+                            self.sve.line += 1;
+                            self.sve.t = 0;
+                            if self.sve.line >= p.lines {
+                                self.exc.set_on(false);
+                                self.phase = Phase::Retract;
+                            } else {
+                                self.phase = Phase::Turn;
+                            }
+                        }
+                    } else {
+                        self.sve.next_boundary =
+                            ((self.sve.pixel as u64 + 1) * p.half_samples as u64 / p.pixels as u64)
+                                as u32;
+                    }
+                }
+            }
+            Phase::Turn => {
+                let f = T::from_i32(t.min(p.turn_samples) as i32) * p.inv_turn;
+                let y_from = p.y0 + p.dy * T::from_i32(self.sve.line as i32 - 1);
+                let y = y_from + p.dy * f;
+                let x = self.x;
+                self.set_xy(x, y);
+                if t >= p.turn_samples {
+                    self.begin_line(true);
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn begin_line(&mut self, forward: bool) {
+        let p = self.p.sve;
+        self.sve.t = 0;
+        self.sve.pixel = 0;
+        self.sve.next_boundary = (p.half_samples as u64 / p.pixels as u64) as u32;
+        self.sve.acc.clear();
+        self.sve.x_acc = T::ZERO;
+        self.phase = if forward {
+            Phase::Forward
+        } else {
+            Phase::Backward
+        };
+    }
+
+    fn finish_pixel(&mut self, forward: bool) {
+        let p = self.p.sve;
+        let s = &mut self.sve;
+        let m = s.acc.mean();
+        let n = s.acc.n.max(1);
+        let to_m = self.p.to_m;
+        let pixel = if forward {
+            s.pixel
+        } else {
+            p.pixels - 1 - s.pixel
+        };
+        let rec = PixelRecord {
+            line: s.line as u16,
+            pixel: pixel as u16,
+            forward,
+            x_m: (p.x0 + s.x_acc / T::from_i32(n as i32)) * to_m,
+            y_m: self.y * to_m,
+            c_ns_per_m: m[0] * self.p.damping_to_si,
+            k_n_per_m: m[1],
+            bed_height_m: m[2] * to_m,
+            depth_m: m[3] * to_m,
+            flags: s.acc.flags,
+            samples: s.acc.n,
+        };
+        self.record = Some(Record::Pixel(rec));
+        s.acc.clear();
+        s.x_acc = T::ZERO;
+    }
+}

@@ -1,0 +1,349 @@
+//! The prefilter 1/Λ(s), Λ(s) = (λs + 1)², of the filtered system equations (18).
+//!
+//! One second-order state `[y, ẏ]` with `λ²ÿ + 2λẏ + y = x` gives, at each sample, the three
+//! signals the regressors need without differentiating anything: `x/Λ = y`, `s·x/Λ = ẏ` and
+//! `s²·x/Λ = (x − y − 2λẏ)/λ²`.
+//!
+//! ## Discretisation, and why there are two
+//! The filter is discretised exactly at the loop period (no forward Euler), with the exact
+//! matrices of [`crate::discretize`]. What "exactly" means depends on what the input does
+//! between samples, and the estimator is very sensitive to getting this right:
+//!
+//! * **U, the DAC output, is a staircase** (zero-order hold): it jumps at each sample and is
+//!   flat in between. [`Hold::Zero`] is then exact, to rounding.
+//! * **Z = U − D, the tip position, is smooth** (the tip has mass); only its samples are
+//!   known. Interpolating it linearly between samples (first-order hold) would be exact for a
+//!   piecewise-linear Z, but for a smooth one the interpolant's mean over a period exceeds the
+//!   signal's by `Z̈·T²/12`: every output would carry a gain `1 + T²s²/12` (0.13 % at 20 kHz
+//!   and 1 MHz), and `s²Z/Λ`, which also uses the sample itself, an extra `T²/(12λ²)`
+//!   (0.5 % at λ = 4T). Measured on the exact model, this biased k̂ by 0.3–0.5 % and ĉ by 0.1 %.
+//!   [`Hold::Smooth`] therefore feeds the first-order hold with the sample minus a twelfth of
+//!   its centred second difference, `x̃ₖ = xₖ − (xₖ₊₁ − 2xₖ + xₖ₋₁)/12`, which cancels the
+//!   `T²s²/12` term (what remains is `0.011·(ωT)⁴`, 3·10⁻⁶ at 20 kHz), and forms `s²Z/Λ` with
+//!   the true sample. The centred difference needs the next sample, so this filter's outputs
+//!   describe the previous sample instant: **one sample of delay**, which the regressor gives
+//!   the U filter too (see [`crate::regressor`]).
+//!
+//! Treating U like Z (smooth between samples) would shift it by half a sample against its true
+//! staircase: at the paper's DIVE excitation (1 µm of U at 20 kHz) that error lands on the
+//! spring term and biases the identified k by about 100 %. Treating both as staircases would
+//! do the same to Z. Hence one filter of each kind.
+
+use crate::discretize::discretize2;
+use crate::real::Real;
+
+/// What the filter's input does between two samples.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Hold {
+    /// Held at the new sample's value over the whole period ending at that sample (a DAC);
+    /// outputs at the new sample's instant.
+    Zero,
+    /// A smooth signal known at the samples; outputs one sample late (see the module docs).
+    Smooth,
+}
+
+/// The discretised coefficients of 1/Λ(s) at one loop period.
+#[derive(Clone, Copy, Debug)]
+pub struct PrefilterCoeffs<T> {
+    phi: [[T; 2]; 2],
+    /// Input weights of the previous and of the new sample.
+    g_prev: [T; 2],
+    g_new: [T; 2],
+    inv_lambda2: T,
+    two_lambda: T,
+    /// Weight of the centred second difference in the held input: 1/12 for a smooth signal.
+    curvature: T,
+    delayed: bool,
+}
+
+impl<T: Real> PrefilterCoeffs<T> {
+    /// Coefficients for time constant `lambda` and period `period` (the same time unit), for an
+    /// input held as `hold` between samples.
+    pub fn new(lambda: f64, period: f64, hold: Hold) -> Self {
+        let l2 = lambda * lambda;
+        let a = [[0.0, 1.0], [-1.0 / l2, -2.0 / lambda]];
+        let b = [0.0, 1.0 / l2];
+        let d = discretize2(a, b, period);
+        // Zero-order hold over (t_{k-1}, t_k] with the new value x_k: x(t) = x_k on the period.
+        // First-order hold: x(t) = x_{k-1} + (x_k − x_{k-1})(t − t_{k-1})/h.
+        let (g_prev, g_new) = match hold {
+            Hold::Zero => ([0.0, 0.0], d.g0),
+            Hold::Smooth => (
+                [d.g0[0] - d.g1[0] / period, d.g0[1] - d.g1[1] / period],
+                [d.g1[0] / period, d.g1[1] / period],
+            ),
+        };
+        let t = |v: f64| T::from_f64(v);
+        Self {
+            phi: [
+                [t(d.phi[0][0]), t(d.phi[0][1])],
+                [t(d.phi[1][0]), t(d.phi[1][1])],
+            ],
+            g_prev: [t(g_prev[0]), t(g_prev[1])],
+            g_new: [t(g_new[0]), t(g_new[1])],
+            inv_lambda2: t(1.0 / l2),
+            two_lambda: t(2.0 * lambda),
+            curvature: t(if hold == Hold::Smooth {
+                1.0 / 12.0
+            } else {
+                0.0
+            }),
+            delayed: hold == Hold::Smooth,
+        }
+    }
+}
+
+/// The filtered signal and its first two derivatives: `x/Λ`, `s·x/Λ`, `s²·x/Λ`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Filtered<T> {
+    /// x/Λ
+    pub x: T,
+    /// s·x/Λ
+    pub dx: T,
+    /// s²·x/Λ
+    pub ddx: T,
+}
+
+/// The state of one prefilter.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Prefilter<T> {
+    y: T,
+    dy: T,
+    /// x_{k-1} and x_{k-2} (raw samples).
+    x1: T,
+    x2: T,
+    /// The held input at the start of the current period (compensated for a smooth signal).
+    held: T,
+}
+
+impl<T: Real> Prefilter<T> {
+    /// A filter at rest at the input level `x0` (steady state: y = x0, ẏ = 0), so that starting
+    /// on a signal with a large offset does not ring.
+    pub fn at_rest(x0: T) -> Self {
+        Self {
+            y: x0,
+            dy: T::ZERO,
+            x1: x0,
+            x2: x0,
+            held: x0,
+        }
+    }
+
+    /// Take the new sample `x` and return the filtered outputs: at its instant for
+    /// [`Hold::Zero`], at the previous sample's instant for [`Hold::Smooth`].
+    #[inline(always)]
+    pub fn update(&mut self, c: &PrefilterCoeffs<T>, x: T) -> Filtered<T> {
+        // For a smooth signal the period just completed is (t_{k-2}, t_{k-1}]: its end value is
+        // x_{k-1} less a twelfth of its centred second difference; for a staircase it is x_k.
+        let (end, sample) = if c.delayed {
+            (
+                self.x1 - c.curvature * ((x - self.x1) - (self.x1 - self.x2)),
+                self.x1,
+            )
+        } else {
+            (x, x)
+        };
+        let y = c.phi[0][0] * self.y
+            + c.phi[0][1] * self.dy
+            + c.g_prev[0] * self.held
+            + c.g_new[0] * end;
+        let dy = c.phi[1][0] * self.y
+            + c.phi[1][1] * self.dy
+            + c.g_prev[1] * self.held
+            + c.g_new[1] * end;
+        self.y = y;
+        self.dy = dy;
+        self.held = end;
+        self.x2 = self.x1;
+        self.x1 = x;
+        Filtered {
+            x: y,
+            dx: dy,
+            ddx: (sample - y - c.two_lambda * dy) * c.inv_lambda2,
+        }
+    }
+
+    /// The current outputs `x/Λ` and `s·x/Λ` without a new sample.
+    #[inline(always)]
+    pub fn state(&self) -> (T, T) {
+        (self.y, self.dy)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Steady-state complex response of the discrete filter to a sampled sinusoid, measured by
+    /// correlating the output against the input over an integer number of periods.
+    fn measure(hold: Hold, f_per_sample: f64, lambda: f64) -> [(f64, f64); 3] {
+        let delay = if hold == Hold::Smooth { 1.0 } else { 0.0 };
+        let c = PrefilterCoeffs::<f64>::new(lambda, 1.0, hold);
+        let mut p = Prefilter::<f64>::at_rest(0.0);
+        let w = 2.0 * core::f64::consts::PI * f_per_sample;
+        let n_settle = (40.0 * lambda) as usize + 1000;
+        let periods = 200.0;
+        let n = (periods / f_per_sample) as usize;
+        let mut acc = [(0.0f64, 0.0f64); 3];
+        for k in 0..n_settle + n {
+            let t = k as f64;
+            let out = p.update(&c, libm::sin(w * t));
+            if k >= n_settle {
+                // Correlate against the input at the instant the outputs describe.
+                let (s, co) = (libm::sin(w * (t - delay)), libm::cos(w * (t - delay)));
+                for (i, v) in [out.x, out.dx, out.ddx].iter().enumerate() {
+                    acc[i].0 += v * s;
+                    acc[i].1 += v * co;
+                }
+            }
+        }
+        let scale = 2.0 / n as f64;
+        acc.map(|(a, b)| (a * scale, b * scale))
+    }
+
+    #[test]
+    fn smooth_hold_matches_continuous_response() {
+        // λ = 4 samples (corner 40 kHz at a 1 MHz loop), and 16 samples; frequencies up to 5 %
+        // of the sample rate (50 kHz at 1 MHz), magnitude and phase of all three outputs.
+        for (lambda, f) in [4.0, 16.0]
+            .iter()
+            .flat_map(|l| [1e-4, 1e-3, 5e-3, 1e-2, 2e-2, 5e-2].map(|f| (*l, f)))
+        {
+            let w = 2.0 * core::f64::consts::PI * f;
+            let meas = measure(Hold::Smooth, f, lambda);
+            // H(jω) = (jω)^k / (1 + jωλ)²
+            let den_re = 1.0 - w * w * lambda * lambda;
+            let den_im = 2.0 * w * lambda;
+            let den2 = den_re * den_re + den_im * den_im;
+            let h0 = (den_re / den2, -den_im / den2);
+            let expected = [h0, (-w * h0.1, w * h0.0), (-w * w * h0.0, -w * w * h0.1)];
+            for k in 0..3 {
+                let (re, im) = (meas[k].0, meas[k].1); // output = re·sin + im·cos
+                let (er, ei) = expected[k];
+                let mag = libm::hypot(re, im);
+                let emag = libm::hypot(er, ei);
+                let phase = libm::atan2(im, re);
+                let ephase = libm::atan2(ei, er);
+                assert!(
+                    (mag / emag - 1.0).abs() < 1e-3,
+                    "f={f} k={k} mag {mag} vs {emag}"
+                );
+                let dphi = (phase - ephase + core::f64::consts::PI)
+                    .rem_euclid(2.0 * core::f64::consts::PI)
+                    - core::f64::consts::PI;
+                assert!(dphi.abs() < 1e-3, "f={f} k={k} phase error {dphi}");
+            }
+        }
+    }
+
+    #[test]
+    fn zero_order_hold_is_exact_for_a_staircase() {
+        // Filter a staircase with the ZOH coefficients at period 1 and, as reference, with
+        // coefficients at period 1/8 fed the same staircase 8 times per step: both exact.
+        let lambda = 3.0;
+        let c1 = PrefilterCoeffs::<f64>::new(lambda, 1.0, Hold::Zero);
+        let c8 = PrefilterCoeffs::<f64>::new(lambda, 0.125, Hold::Zero);
+        let mut p1 = Prefilter::at_rest(0.0);
+        let mut p8 = Prefilter::at_rest(0.0);
+        for k in 0..2000 {
+            let x = libm::sin(0.05 * k as f64) + if k % 7 == 0 { 1.0 } else { 0.0 };
+            let o1 = p1.update(&c1, x);
+            let mut o8 = Filtered::default();
+            for _ in 0..8 {
+                o8 = p8.update(&c8, x);
+            }
+            assert!((o1.x - o8.x).abs() < 1e-12 && (o1.dx - o8.dx).abs() < 1e-12);
+            assert!((o1.ddx - o8.ddx).abs() < 1e-11);
+        }
+    }
+
+    #[test]
+    fn unit_dc_gain_and_rest_start() {
+        let c = PrefilterCoeffs::<f32>::new(4.0, 1.0, Hold::Smooth);
+        let mut p = Prefilter::<f32>::at_rest(1234.5);
+        for _ in 0..10 {
+            let o = p.update(&c, 1234.5);
+            assert!((o.x - 1234.5).abs() < 1e-3 && o.dx.abs() < 1e-4 && o.ddx.abs() < 1e-3);
+        }
+    }
+}
+
+/// A second-order high-pass `(sτ/(1 + sτ))²`, two first-order sections discretised by matched
+/// poles. The decoupled SVE regression applies it alike to w and to φ (see
+/// [`crate::config::SveRegressor::Decoupled`]): a filter applied to both sides of a
+/// linear-in-the-parameters identity keeps it exact, and this one removes the slowly varying
+/// offset `k·(h − z₀)` that the topography puts into w under a scanning tip.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct HighPass<T> {
+    x1: T,
+    y1: T,
+    y2: T,
+}
+
+impl<T: Real> HighPass<T> {
+    /// The pole factor e^{−T/τ} for corner `corner_hz` at `sample_rate_hz`.
+    pub fn coefficient(corner_hz: f64, sample_rate_hz: f64) -> T {
+        T::from_f64(libm::exp(
+            -2.0 * core::f64::consts::PI * corner_hz / sample_rate_hz,
+        ))
+    }
+
+    /// At rest with the input at `x0` (both outputs zero).
+    pub fn at_rest(x0: T) -> Self {
+        Self {
+            x1: x0,
+            y1: T::ZERO,
+            y2: T::ZERO,
+        }
+    }
+
+    /// One sample.
+    #[inline(always)]
+    pub fn update(&mut self, a: T, x: T) -> T {
+        let y1 = a * (self.y1 + x - self.x1);
+        let y2 = a * (self.y2 + y1 - self.y1);
+        self.x1 = x;
+        self.y1 = y1;
+        self.y2 = y2;
+        y2
+    }
+}
+
+#[cfg(test)]
+mod highpass_tests {
+    use super::*;
+
+    #[test]
+    fn highpass_rejects_slow_offsets_and_passes_tones() {
+        let a = HighPass::<f64>::coefficient(600.0, 1e6);
+        let gain = |f: f64| {
+            let mut h = HighPass::<f64>::at_rest(0.0);
+            let w = 2.0 * core::f64::consts::PI * f / 1e6;
+            let mut peak = 0.0f64;
+            for k in 0..2_000_000 {
+                let y = h.update(a, libm::sin(w * k as f64) + 300.0);
+                if k > 1_000_000 {
+                    peak = peak.max(y.abs());
+                }
+            }
+            peak
+        };
+        // Each section is H(z) = a(1 − z⁻¹)/(1 − a·z⁻¹); two in cascade: |H|².
+        let exact = |f: f64| {
+            let w = 2.0 * core::f64::consts::PI * f / 1e6;
+            let num = 2.0 - 2.0 * libm::cos(w);
+            let den = 1.0 - 2.0 * a * libm::cos(w) + a * a;
+            a * a * num / den
+        };
+        for f in [50.0, 600.0, 4915.0, 19660.0] {
+            let g = gain(f);
+            assert!(
+                (g / exact(f) - 1.0).abs() < 2e-3,
+                "gain at {f} Hz: {g} vs {}",
+                exact(f)
+            );
+        }
+        // The tones pass, a 50 Hz drift of the operating point is cut 140-fold.
+        assert!(gain(4915.0) > 0.98 && gain(50.0) < 0.0075);
+    }
+}

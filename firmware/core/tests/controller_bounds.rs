@@ -1,0 +1,74 @@
+//! For arbitrary input sequences — finite or not, in range or absurd — `step` returns finite
+//! outputs inside their ranges and the estimates stay finite and inside their bounds.
+
+use proptest::prelude::*;
+use visco_core::{Command, Config, Controller, DiveRegressor, Mode, SveRegressor};
+
+fn arb_d() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        4 => -3e-6f32..3e-6,          // plausible deflections, including beyond full scale
+        2 => -1e-9f32..1e-9,          // near zero
+        1 => any::<f32>(),            // anything, NaN and ±∞ included
+        1 => Just(f32::NAN),
+        1 => Just(f32::INFINITY),
+        1 => Just(-f32::MAX),
+    ]
+}
+
+fn short_config(fs: f64) -> Config {
+    let mut c = Config::paper(fs);
+    c.dive.nx = 2;
+    c.dive.ny = 1;
+    c.dive.tap_s = 0.03;
+    c.dive.move_s = 1e-4;
+    c.dive.settle_s = 1e-4;
+    c.dive.readout_s = 1e-3;
+    c.dive.excitation.ramp_s = 2e-4;
+    c.sve.lines = 1;
+    c.sve.pixels = 4;
+    c.sve.line_period_s = 0.02;
+    c.sve.turn_s = 1e-3;
+    c.sve.settle_s = 1e-3;
+    c.sve.excitation.ramp_s = 2e-4;
+    c.approach.u_start_m = 20e-9;
+    c
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    #[test]
+    fn step_output_is_finite_and_in_range_for_any_input(
+        data in proptest::collection::vec(arb_d(), 1..30_000),
+        mode in prop_oneof![Just(Mode::Dive), Just(Mode::Sve)],
+        paper in any::<bool>(),
+    ) {
+        let mut cfg = short_config(1e6);
+        if paper {
+            cfg.dive.regressor = DiveRegressor::Paper;
+            cfg.sve.regressor = SveRegressor::Paper;
+        }
+        cfg.validate().unwrap();
+        let mut ctrl = Controller::<f32>::new(&cfg).unwrap();
+        ctrl.command(Command::Start(mode));
+        let (umin, umax) = (cfg.limits.u_min_m as f32, cfg.limits.u_max_m as f32);
+        let (xmin, xmax) = (cfg.limits.xy_min_m as f32, cfg.limits.xy_max_m as f32);
+        for d in data {
+            let out = ctrl.step(d);
+            prop_assert!(out.u_m.is_finite() && out.u_m >= umin && out.u_m <= umax, "u = {}", out.u_m);
+            prop_assert!(out.x_m.is_finite() && out.x_m >= xmin && out.x_m <= xmax);
+            prop_assert!(out.y_m.is_finite() && out.y_m >= xmin && out.y_m <= xmax);
+            prop_assert!(out.u_code >= -32768 && out.u_code <= 32767);
+            let (c, k, h) = ctrl.estimates();
+            prop_assert!(c.is_finite() && c >= 0.0 && c as f64 <= cfg.dive.estimator.c_max_ns_per_m.max(cfg.sve.estimator.c_max_ns_per_m) * 1.0001);
+            prop_assert!(k.is_finite() && k > 0.0);
+            prop_assert!(h.is_finite());
+            if let Some(r) = ctrl.take_record() {
+                match r {
+                    visco_core::Record::Tap(t) => prop_assert!(t.c_ns_per_m.is_finite() && t.k_n_per_m.is_finite() && t.offset_n.is_finite() && t.depth_m.is_finite()),
+                    visco_core::Record::Pixel(p) => prop_assert!(p.c_ns_per_m.is_finite() && p.k_n_per_m.is_finite() && p.bed_height_m.is_finite() && p.depth_m.is_finite()),
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,151 @@
+//! The controller's DIVE and SVE sequences end to end on the exact aggregate plant: the whole
+//! per-sample path (input, prefilters, regressor, estimator, contact detector, depth
+//! controller, excitation, DAC grid, sequencer, records) in f32, as the board runs it.
+
+mod common;
+
+use common::AggregatePlant;
+use visco_core::{
+    status, units, Command, Config, Controller, DiveRegressor, Mode, Phase, Record, SveRegressor,
+};
+
+const FS: f64 = 1e6;
+const K: f64 = 0.099;
+const C: f64 = 1.7e-5;
+
+fn run(
+    ctrl: &mut Controller<f32>,
+    plant: &mut AggregatePlant,
+    max_steps: usize,
+    mut surface: impl FnMut(f64) -> f64,
+) -> Vec<Record<f32>> {
+    let mut records = Vec::new();
+    let mut d = 0.0f32;
+    for _ in 0..max_steps {
+        let out = ctrl.step(d);
+        if out.status & status::RECORD_READY != 0 {
+            records.push(ctrl.take_record().unwrap());
+        }
+        if ctrl.phase() == Phase::Done {
+            break;
+        }
+        plant.h = surface(out.x_m as f64) / units::LENGTH;
+        d = (plant.step(out.u_m as f64 / units::LENGTH) * units::LENGTH) as f32;
+    }
+    records
+}
+
+#[test]
+fn dive_taps_recover_the_aggregate_contact() {
+    for regressor in [DiveRegressor::Offset, DiveRegressor::Paper] {
+        let mut cfg = Config::paper(FS);
+        cfg.dive.nx = 2;
+        cfg.dive.ny = 2;
+        cfg.dive.regressor = regressor;
+        let mut ctrl = Controller::<f32>::new(&cfg).unwrap();
+        let h = 120e-9;
+        let mut plant = AggregatePlant::paper(K, C, h, 1.0 / FS);
+        plant.settle_at(cfg.approach.u_start_m / units::LENGTH);
+        ctrl.command(Command::Start(Mode::Dive));
+        let recs = run(&mut ctrl, &mut plant, 2_000_000, |_| h);
+        assert_eq!(recs.len(), 4, "{regressor:?}: one record per tap");
+        for r in recs {
+            let Record::Tap(t) = r else {
+                panic!("not a tap")
+            };
+            let (c, k) = (t.c_ns_per_m as f64, t.k_n_per_m as f64);
+            let h_err = t.bed_height_m() - h;
+            println!(
+                "{regressor:?} tap {}: c {:.4e} ({:+.3} %), k {:.4e} ({:+.3} %), contact {:.2} nm, bed {:.2} nm ({:+.2} nm), depth {:.1} nm, flags {:#x}, n {}",
+                t.index, c, (c / C - 1.0) * 100.0, k, (k / K - 1.0) * 100.0, t.contact_height_m as f64 * 1e9, t.bed_height_m() * 1e9, h_err * 1e9, t.depth_m as f64 * 1e9, t.flags, t.samples
+            );
+            assert_eq!(
+                t.flags & (status::NO_CONTACT | status::SHORT_DWELL | status::EST_RESET),
+                0
+            );
+            assert!((c / C - 1.0).abs() < 2e-3, "c {c}");
+            assert!((k / K - 1.0).abs() < 2e-3, "k {k}");
+            // The contact detector fires within a few nm of the surface (γ = 0.3 nm of
+            // deflection on k = 0.1 N/m: 0.54 nm, plus the low-pass lag at 100 µm/s);
+            // the offset form finds the surface itself.
+            assert!(t.contact_height_m as f64 <= h && (h - t.contact_height_m as f64) < 10e-9);
+            if regressor == DiveRegressor::Offset {
+                assert!(h_err.abs() < 0.2e-9, "bed height off by {h_err}");
+            }
+            assert!((t.depth_m as f64 - cfg.dive.indent_depth_m).abs() < 30e-9);
+        }
+    }
+}
+
+/// A 100 nm rise over the 5 µm line, with a 40 nm bump in the middle.
+fn bumpy(x: f64) -> f64 {
+    100e-9 + 20e-9 * x / 1e-6 + 40e-9 * (-((x - 2.5e-6) / 0.6e-6).powi(2)).exp()
+}
+
+/// Scan 2 lines of 20 pixels over `surface`; worst pixel errors of c, k (relative), height and
+/// depth (m).
+fn sve_worst(regressor: SveRegressor, line_period_s: f64, surface: fn(f64) -> f64) -> [f64; 4] {
+    let mut cfg = Config::paper(FS);
+    cfg.sve.regressor = regressor;
+    cfg.sve.lines = 2;
+    cfg.sve.pixels = 20;
+    cfg.sve.line_period_s = line_period_s;
+    let mut ctrl = Controller::<f32>::new(&cfg).unwrap();
+    let mut plant = AggregatePlant::paper(K, C, surface(0.0), 1.0 / FS);
+    plant.settle_at(cfg.approach.u_start_m / units::LENGTH);
+    ctrl.command(Command::Start(Mode::Sve));
+    let recs = run(
+        &mut ctrl,
+        &mut plant,
+        (2.5 * line_period_s * FS) as usize + 200_000,
+        surface,
+    );
+    assert_eq!(recs.len(), 2 * 2 * 20, "pixels of 2 lines × 2 directions");
+    let depth_eff = cfg.sve_effective_depth_m();
+    let mut worst = [0.0f64; 4];
+    for r in &recs {
+        let Record::Pixel(p) = r else {
+            panic!("not a pixel")
+        };
+        let x = p.x_m as f64;
+        let errs = [
+            p.c_ns_per_m as f64 / C - 1.0,
+            p.k_n_per_m as f64 / K - 1.0,
+            p.bed_height_m as f64 - surface(x),
+            p.depth_m as f64 - depth_eff,
+        ];
+        for i in 0..4 {
+            worst[i] = worst[i].max(errs[i].abs());
+        }
+        assert_eq!(p.flags & status::EST_RESET, 0);
+    }
+    println!("{regressor:?}, line period {line_period_s} s: worst pixel errors c {:.3} %, k {:.3} %, height {:.2} nm, depth {:.2} nm", worst[0] * 100.0, worst[1] * 100.0, worst[2] * 1e9, worst[3] * 1e9);
+    worst
+}
+
+#[test]
+fn sve_decoupled_scan_tracks_a_bumpy_surface_at_depth() {
+    // 26 µm/s over a 40 nm bump: the decoupled regression keeps c and k within 0.1 %.
+    let worst = sve_worst(SveRegressor::Decoupled, 0.4, bumpy);
+    assert!(worst[0] < 1e-3 && worst[1] < 1e-3, "c/k off by {worst:?}");
+    assert!(worst[2] < 2e-9, "height off by {} nm", worst[2] * 1e9);
+    assert!(worst[3] < 2e-9, "depth off by {} nm", worst[3] * 1e9);
+}
+
+#[test]
+fn sve_paper_regressor_tracks_a_slope_when_scanning_slowly() {
+    // The paper's form must track θ₃ = k·(h − z₀) as the surface rises: on a 20 nm/µm slope at
+    // its 2 s line period (5 µm/s) it is accurate; on the bump at 26 µm/s it is not (measured
+    // for the record, see the decoupled test).
+    fn slope(x: f64) -> f64 {
+        100e-9 + 20e-9 * x / 1e-6
+    }
+    let worst = sve_worst(SveRegressor::Paper, 2.0, slope);
+    assert!(worst[0] < 0.01 && worst[1] < 0.02, "c/k off by {worst:?}");
+    assert!(worst[2] < 3e-9, "height off by {} nm", worst[2] * 1e9);
+    let fast = sve_worst(SveRegressor::Paper, 0.4, bumpy);
+    assert!(
+        fast[1] > 0.05,
+        "expected the paper's form to lag on the fast bump: {fast:?}"
+    );
+}
