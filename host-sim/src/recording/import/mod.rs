@@ -151,7 +151,7 @@ pub struct Import {
 
 enum Inner {
     Jpk(Box<jpk::JpkArchive>),
-    Single(Recording),
+    Single(Box<Recording>),
 }
 
 impl Import {
@@ -164,8 +164,10 @@ impl Import {
             Format::JpkForce | Format::JpkForceMap | Format::JpkQiData => {
                 Inner::Jpk(Box::new(jpk::JpkArchive::open(path, format, opts)?))
             }
-            Format::AfmWorkshopCsv => Inner::Single(workshop::import(path, opts, &mut warnings)?),
-            Format::NtMdtTxt => Inner::Single(ntmdt::import(path, opts, &mut warnings)?),
+            Format::AfmWorkshopCsv => {
+                Inner::Single(Box::new(workshop::import(path, opts, &mut warnings)?))
+            }
+            Format::NtMdtTxt => Inner::Single(Box::new(ntmdt::import(path, opts, &mut warnings)?)),
         };
         Ok(Import {
             format,
@@ -201,7 +203,7 @@ impl Import {
             }
             Inner::Single(rec) => {
                 if curve == 0 {
-                    Ok(rec.clone())
+                    Ok((**rec).clone())
                 } else {
                     Err(RecordingError::new(
                         Path::new(rec.meta.get("source_file").unwrap_or("")),

@@ -1,13 +1,13 @@
 //! AFM Workshop force–distance CSV.
 //!
 //! ```text
-//! Force-Distance Curve
-//! File Format:	3
+//! Force-Distance Curve   (key and value are separated by a tab)
+//! File Format:    3
 //!
-//! Date:	22 October 2020
+//! Date:    22 October 2020
 //! ...
-//! X, um:	0.500000
-//! Y, um:	0.500000
+//! X, um:    0.500000
+//! Y, um:    0.500000
 //!
 //! Extend Z-Sense(nm),Extend Force(nN),Retract Z-Sense(nm),Retract Force(nN)
 //! 4129.0327,0.0531,5345.0327,0.0709
