@@ -65,7 +65,11 @@ fn mutated_and_truncated_vendor_files_never_panic() {
         sources.push((name.to_string(), std::fs::read(real(name)).unwrap()));
     }
     for (name, original) in &sources {
-        let ext = Path::new(name).extension().unwrap().to_string_lossy().into_owned();
+        let ext = Path::new(name)
+            .extension()
+            .unwrap()
+            .to_string_lossy()
+            .into_owned();
         let target = dir.path().join(format!("m.{ext}"));
         for _ in 0..150 {
             let mut b = original.clone();

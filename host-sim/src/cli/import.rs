@@ -18,9 +18,11 @@ const CURVE_PLACEHOLDER: &str = "{curve}";
 #[command(after_help = "\
 Formats: JPK .jpk-force, .jpk-force-map, .jpk-qi-data; AFM Workshop .csv; NT-MDT .txt export.
 
-Every output is a `mode: force-curve` recording (see shared/spec/recording.md): u_m the piezo
-position (z up), d_m the deflection (negative when the sample pushes the tip up), plus the
-columns `segment` and, where the file has them, `force_vendor_n` and `height_measured_m`.
+Every output is a `mode: force-curve` recording (see shared/spec/recording.md): u_m the base
+position, z up (JPK: the z sensor's reading; the piezo drive signal goes to `height_piezo_m`),
+d_m the deflection (negative when the sample pushes the tip up), t_s from the vendor's rates,
+plus `segment` (see the `# segments:` line) and, where the file has one, the vendor's force
+`force_vendor_n` (vendor sign: positive = repulsive, = -k*d_m).
 
 Maps (.jpk-force-map, .jpk-qi-data) hold one curve per grid point. Either pick one with
 --curve INDEX, or write them all by putting {curve} in --out, which is replaced by the curve's
@@ -28,9 +30,12 @@ index number (as in the archive's index/N/):
     visco import map.jpk-force-map --tip-radius 5e-6 --out curves/map-{curve}.csv
 
 A value the file lacks must be given: the tip radius always (no vendor stores it), the spring
-constant and sensitivity where the file has none, the sampling rate for AFM Workshop and NT-MDT
-files (they hold no time base). A flag overrides the file's value, with a warning when they
-differ.")]
+constant and sensitivity where the file has none (AFM Workshop Force(nN) files need no
+sensitivity), the sampling rate for AFM Workshop and NT-MDT files (they hold no time base).
+A flag overrides the file's value, with a warning when they differ.
+
+Errors are one line on stderr, `error: FILE[:MEMBER][:LINE]: reason (fix: ...)`, with exit
+status 1; nothing is written unless every curve succeeds.")]
 pub struct ImportArgs {
     /// The vendor file to import.
     pub file: PathBuf,

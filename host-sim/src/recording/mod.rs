@@ -481,6 +481,11 @@ impl Recording {
         })
     }
 
+    /// All rows in order (stops early if a column is shorter than `t_s`).
+    pub fn rows(&self) -> impl Iterator<Item = Row> + '_ {
+        (0..self.len()).map_while(|i| self.row(i))
+    }
+
     /// Appends a row (which must match this recording's column layout).
     pub fn push_row(&mut self, row: &Row) {
         self.t_s.push(row.t_s);
