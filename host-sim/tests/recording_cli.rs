@@ -267,3 +267,99 @@ fn help_documents_the_map_pattern() {
         assert!(h.contains(needle), "help lacks {needle}");
     }
 }
+
+#[test]
+fn every_malformed_input_fails_cleanly_without_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let inputs = dir.path().join("in");
+    let outdir = dir.path().join("out");
+    std::fs::create_dir(&inputs).unwrap();
+    std::fs::create_dir(&outdir).unwrap();
+    let spot3 = std::fs::read(real(SPOT3)).unwrap();
+    let ws = std::fs::read_to_string(real(WORKSHOP)).unwrap();
+    let ws_line = |i: usize, row: &str| {
+        let mut l: Vec<&str> = ws.split('\n').collect();
+        l[i] = row;
+        l.join("\n")
+    };
+    let mut cases: Vec<(&str, Vec<u8>, String)> = vec![
+        (
+            "cut.jpk-force",
+            spot3[..spot3.len() / 2].to_vec(),
+            "not a readable zip archive".into(),
+        ),
+        ("empty.jpk-force", Vec::new(), "empty file".into()),
+        ("empty.csv", Vec::new(), ":1: empty file".into()),
+        (
+            "cell.csv",
+            ws_line(20, "4138.0327,x,5336.0327,0.0701\r").into_bytes(),
+            ":21: cell 2 `x` is not a finite number".into(),
+        ),
+        (
+            "nan.csv",
+            ws_line(20, "4138.0327,NaN,5336.0327,0.0701\r").into_bytes(),
+            ":21: cell 2 `NaN` is not a finite number".into(),
+        ),
+        (
+            "cols.csv",
+            ws_line(20, "4138.0327,0.0530,5336.0327,0.0701,1\r").into_bytes(),
+            ":21: expected 4 cells, found 5".into(),
+        ),
+    ];
+    let nohead = inputs.join("nohead.jpk-force");
+    rezip(&real(SPOT3), &nohead, |n, b| {
+        (n != "header.properties").then_some(b)
+    });
+    cases.push((
+        "nohead.jpk-force",
+        std::fs::read(&nohead).unwrap(),
+        "no header.properties".into(),
+    ));
+    let noprop = inputs.join("noprop.jpk-force");
+    rezip(&real(SPOT3), &noprop, |n, b| {
+        Some(if n == "segments/1/segment-header.properties" {
+            set_property(b, "force-segment-header.duration", None)
+        } else {
+            b
+        })
+    });
+    cases.push((
+        "noprop.jpk-force",
+        std::fs::read(&noprop).unwrap(),
+        ":segments/1/segment-header.properties: missing property `force-segment-header.duration`"
+            .into(),
+    ));
+    for (name, bytes, expected) in cases {
+        let src = inputs.join(name);
+        std::fs::write(&src, bytes).unwrap();
+        let out = outdir.join(format!("{name}.rec.csv"));
+        let o = visco(&[
+            "import",
+            s(&src),
+            "--out",
+            s(&out),
+            "--spring-constant",
+            "0.1",
+            "--sample-rate",
+            "1000",
+            "--tip-radius",
+            "5e-6",
+        ]);
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{name}: {err}");
+        assert_eq!(err.lines().count(), 1, "{name}: {err}");
+        assert!(
+            err.starts_with(&format!("error: {}", src.display())),
+            "{name}: {err}"
+        );
+        assert!(
+            err.contains(&expected),
+            "{name}: `{err}` lacks `{expected}`"
+        );
+        assert!(
+            dir_listing(&outdir).is_empty(),
+            "{name}: {:?}",
+            dir_listing(&outdir)
+        );
+    }
+}

@@ -17,14 +17,28 @@ pub const MAP: &str = "fmt-jpk-fd_map2x2_extracted.jpk-force-map";
 pub const WORKSHOP: &str = "fmt-afm-workshop-fd_single_2021-10-22_14.16.csv";
 pub const NTMDT: &str = "fmt-ntmdt-txt-fd_2015_01_17_gel4-0,1_mQ_adh_6B_Curve_DFL_Height_51.txt";
 
-/// A real file. `VISCO_SHARED_DIR` overrides where `shared/` is (for worktrees that do not
-/// sit beside it); without it, the repository's sibling `shared/` is used. A missing file fails
-/// the test: these tests never skip.
+/// A real file, looked for in: `$VISCO_SHARED_DIR/data/real/`, then the repository's sibling
+/// `shared/` (as in CI: `concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/real/")`),
+/// then `shared/` beside any ancestor (git worktrees that live deeper than the main clone).
+/// A missing file fails the test: these tests never skip.
 pub fn real(name: &str) -> PathBuf {
-    match std::env::var_os("VISCO_SHARED_DIR") {
-        Some(dir) => Path::new(&dir).join("data/real").join(name),
-        None => Path::new(REAL).join(name),
+    let mut candidates: Vec<PathBuf> = Vec::new();
+    if let Some(dir) = std::env::var_os("VISCO_SHARED_DIR") {
+        candidates.push(Path::new(&dir).join("data/real"));
     }
+    candidates.push(PathBuf::from(REAL));
+    for anc in Path::new(env!("CARGO_MANIFEST_DIR")).ancestors() {
+        candidates.push(anc.join("shared/data/real"));
+    }
+    for c in &candidates {
+        let p = c.join(name);
+        if p.is_file() {
+            return p;
+        }
+    }
+    panic!(
+        "real data file {name} not found in {candidates:?}; set VISCO_SHARED_DIR to the shared/ folder"
+    );
 }
 
 /// Options with only the tip radius (what every JPK file needs).
