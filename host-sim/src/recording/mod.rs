@@ -243,6 +243,12 @@ impl Metadata {
                 return Err((k.clone(), format!("key `{k}` appears twice")));
             }
             seen.push(k);
+            if k.len() + v.len() + 4 > MAX_LINE_BYTES {
+                return Err((
+                    k.clone(),
+                    format!("the value of `{k}` is too long for one line"),
+                ));
+            }
             if v.contains(['\n', '\r']) || v.trim() != v {
                 return Err((
                     k.clone(),

@@ -280,8 +280,8 @@ pub(crate) fn resolve(
         (Some(f), Some(v)) => {
             if (f - v).abs() > 1e-9 * f.abs().max(v.abs()) {
                 let w = format!(
-                    "{} {} = {f} {unit} overrides the file's {v} {unit}",
-                    need.flag, need.what
+                    "{} {f} {unit} from {} overrides the file's {v} {unit}",
+                    need.what, need.flag
                 );
                 if !warnings.contains(&w) {
                     warnings.push(w);
