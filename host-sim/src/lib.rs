@@ -1,1 +1,3 @@
+//! visco host side: simulated AFM, experiments, recordings, identify, diagnose.
 
+pub mod recording;

@@ -1,0 +1,54 @@
+//! Command-line front end: one module per subcommand.
+//!
+//! To add a subcommand `foo`: write `src/cli/foo.rs` with a `#[derive(clap::Args)] pub struct
+//! FooArgs` and a `pub fn run(args: FooArgs) -> CliResult`, then add `mod foo;` and one
+//! variant `Foo(foo::FooArgs)` to [`Command`] (and its arm in [`run`]). Errors are printed as a
+//! single line `error: ...` on stderr with a non-zero exit status; library errors such as
+//! `RecordingError` already read `FILE:LINE: reason (fix: ...)`.
+
+mod import;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+/// What a subcommand returns: any error, displayed on one line.
+pub type CliResult = Result<(), Box<dyn std::error::Error>>;
+
+/// visco: identify viscoelastic properties of living cells with an AFM.
+#[derive(Debug, Parser)]
+#[command(name = "visco", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Convert a vendor force-curve file (JPK, AFM Workshop, NT-MDT) into recording CSVs.
+    Import(import::ImportArgs),
+}
+
+/// Parses the command line, runs the subcommand, reports errors. Exit status: 0 success,
+/// 1 the command failed, 2 bad usage (from clap).
+pub fn run() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Import(args) => import::run(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Value parser for flags that must be finite and positive (rates, radii, constants).
+pub fn positive_f64(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(v) => Err(format!("{v} is not a finite positive number")),
+        Err(_) => Err(format!("`{s}` is not a number")),
+    }
+}
