@@ -99,6 +99,10 @@ pub struct FootprintMean {
     pub h_m: f64,
     pub c_n_s_per_m: f64,
     pub k_n_per_m: f64,
+    /// Mean sag of the sphere over the footprint's elements, `R − √(R² − r_i²)` averaged: the
+    /// exact replacement of Appendix A's continuum value R/3 (a submerged tip feels
+    /// `F = n·k·(δ − sag)` on a homogeneous bed).
+    pub sag_m: f64,
 }
 
 impl Sample {
@@ -359,12 +363,14 @@ impl Sample {
     /// averages (DIVE: `k_c = k/n`, `c_c = c/n`); SVE's partial contact weights the centre more,
     /// which the experiments may want to model separately.
     pub fn footprint_mean(&self, x_m: f64, y_m: f64, tip_radius_m: f64) -> Option<FootprintMean> {
-        let (mut n, mut h, mut c, mut k) = (0usize, 0.0, 0.0, 0.0);
-        self.for_each_within(x_m, y_m, tip_radius_m, |e| {
+        let (mut n, mut h, mut c, mut k, mut sag) = (0usize, 0.0, 0.0, 0.0, 0.0);
+        let r = tip_radius_m;
+        self.for_each_within(x_m, y_m, r, |e| {
             n += 1;
             h += e.h_m;
             c += e.c_n_s_per_m;
             k += e.k_n_per_m;
+            sag += r - (r * r - e.r_m * e.r_m).max(0.0).sqrt();
         });
         (n > 0).then(|| {
             let inv = 1.0 / n as f64;
@@ -373,6 +379,7 @@ impl Sample {
                 h_m: h * inv,
                 c_n_s_per_m: c * inv,
                 k_n_per_m: k * inv,
+                sag_m: sag * inv,
             }
         })
     }
