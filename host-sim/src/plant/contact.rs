@@ -15,25 +15,32 @@
 
 use crate::sample::Sample;
 
+/// A candidate element (internal units) with its current threshold.
+#[derive(Clone, Copy, Debug, Default)]
+struct Cand {
+    /// Threshold `t` at the last update (−∞ when not under the tip).
+    t: f64,
+    x: f64,
+    y: f64,
+    h: f64,
+    k: f64,
+    c: f64,
+    /// Zobrist key of the element.
+    key: u64,
+    /// Global sample index.
+    idx: u32,
+}
+
 /// Internal units: nm, nN/nm, nN·µs/nm.
 #[derive(Clone, Debug, Default)]
 pub struct Footprint {
-    /// Candidate elements (global index, position, rest height, k, c).
-    idx: Vec<u32>,
-    x: Vec<f64>,
-    y: Vec<f64>,
-    h: Vec<f64>,
-    k: Vec<f64>,
-    c: Vec<f64>,
+    /// Candidates, kept sorted by threshold descending (the order of the last update, which
+    /// the next update's insertion sort starts from).
+    cand: Vec<Cand>,
     /// Centre of the candidate disc and its margin.
     centre: [f64; 2],
     margin: f64,
-    /// Permutation of the candidates, by threshold descending; the first `len` are under the
-    /// tip (`r < R`).
-    order: Vec<u32>,
-    /// Threshold per candidate (−∞ when not under the tip).
-    t_cand: Vec<f64>,
-    /// Sorted thresholds `t[0] ≥ t[1] ≥ … ≥ t[len−1]`.
+    /// Sorted thresholds `t[0] ≥ t[1] ≥ … ≥ t[len−1]` of the elements under the tip.
     pub t: Vec<f64>,
     /// Prefix sums, length `len + 1`.
     pub s_k: Vec<f64>,
@@ -82,26 +89,22 @@ impl Footprint {
         use visco_core::units::LENGTH;
         self.margin = (0.5 * s.sample.pitch_m() / LENGTH).max(0.05 * r);
         self.centre = [x, y];
-        self.idx.clear();
-        self.x.clear();
-        self.y.clear();
-        self.h.clear();
-        self.k.clear();
-        self.c.clear();
+        self.cand.clear();
         let reach_m = (r + self.margin) * LENGTH;
         s.sample
             .for_each_within(x * LENGTH, y * LENGTH, reach_m, |e| {
-                self.idx.push(e.index as u32);
-                self.x.push(e.x_m / LENGTH);
-                self.y.push(e.y_m / LENGTH);
-                self.h.push(s.h_nm[e.index]);
-                self.k.push(s.k[e.index]);
-                self.c.push(s.c[e.index]);
+                self.cand.push(Cand {
+                    t: f64::NEG_INFINITY,
+                    x: e.x_m / LENGTH,
+                    y: e.y_m / LENGTH,
+                    h: s.h_nm[e.index],
+                    k: s.k[e.index],
+                    c: s.c[e.index],
+                    key: zobrist(e.index as u32),
+                    idx: e.index as u32,
+                });
             });
-        let m = self.idx.len();
-        self.order.clear();
-        self.order.extend(0..m as u32);
-        self.t_cand.resize(m, f64::NEG_INFINITY);
+        let m = self.cand.len();
         self.t.resize(m, 0.0);
         for v in [&mut self.s_k, &mut self.s_c, &mut self.s_kt] {
             v.resize(m + 1, 0.0);
@@ -118,42 +121,41 @@ impl Footprint {
         }
         self.at = [x, y];
         let r2 = r * r;
-        for j in 0..self.idx.len() {
-            let dx = self.x[j] - x;
-            let dy = self.y[j] - y;
+        for e in &mut self.cand {
+            let dx = e.x - x;
+            let dy = e.y - y;
             let q = r2 - (dx * dx + dy * dy);
-            self.t_cand[j] = if q > 0.0 {
-                self.h[j] - r + q.sqrt()
+            e.t = if q > 0.0 {
+                e.h - r + q.sqrt()
             } else {
                 f64::NEG_INFINITY
             };
         }
-        // Insertion sort of the previous order: O(m) when little moved.
-        let t = &self.t_cand;
-        let ord = &mut self.order;
-        for a in 1..ord.len() {
-            let key = ord[a];
-            let tk = t[key as usize];
+        // Insertion sort from the previous order: O(m) when little moved.
+        let c = &mut self.cand;
+        for a in 1..c.len() {
+            if c[a - 1].t >= c[a].t {
+                continue;
+            }
+            let item = c[a];
             let mut b = a;
-            while b > 0 && t[ord[b - 1] as usize] < tk {
-                ord[b] = ord[b - 1];
+            while b > 0 && c[b - 1].t < item.t {
+                c[b] = c[b - 1];
                 b -= 1;
             }
-            ord[b] = key;
+            c[b] = item;
         }
         let mut len = 0;
         let (mut sk, mut sc, mut skt, mut hs) = (0.0, 0.0, 0.0, 0u64);
-        for (n, &o) in self.order.iter().enumerate() {
-            let o = o as usize;
-            let tt = self.t_cand[o];
-            if tt == f64::NEG_INFINITY {
+        for (n, e) in self.cand.iter().enumerate() {
+            if e.t == f64::NEG_INFINITY {
                 break;
             }
-            self.t[n] = tt;
-            sk += self.k[o];
-            sc += self.c[o];
-            skt += self.k[o] * tt;
-            hs ^= zobrist(self.idx[o]);
+            self.t[n] = e.t;
+            sk += e.k;
+            sc += e.c;
+            skt += e.k * e.t;
+            hs ^= e.key;
             self.s_k[n + 1] = sk;
             self.s_c[n + 1] = sc;
             self.s_kt[n + 1] = skt;
@@ -171,13 +173,11 @@ impl Footprint {
 
     /// Global sample indices of the first `n` (engaged) elements.
     pub fn active_indices(&self, n: usize) -> impl Iterator<Item = usize> + '_ {
-        self.order[..n.min(self.len)]
-            .iter()
-            .map(|&o| self.idx[o as usize] as usize)
+        self.cand[..n.min(self.len)].iter().map(|e| e.idx as usize)
     }
 
     /// The largest number of elements that can be under the tip at once (for cache sizing).
     pub fn capacity(&self) -> usize {
-        self.idx.len()
+        self.cand.len()
     }
 }

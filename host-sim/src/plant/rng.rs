@@ -52,7 +52,7 @@ impl Xoshiro256pp {
     /// Uniform in the open interval (0, 1) (never 0, so its logarithm is finite).
     #[inline]
     pub fn next_open01(&mut self) -> f64 {
-        ((self.next_u64() >> 11) as f64 + 0.5) * (1.0 / (1u64 << 53) as f64)
+        ((self.next_u64() >> 11) as i64 as f64 + 0.5) * (1.0 / (1u64 << 53) as f64)
     }
 }
 
@@ -102,8 +102,8 @@ impl NormalRng {
         loop {
             let bits = self.rng.next_u64();
             let i = (bits & 0x7F) as usize;
-            // Uniform in (−1, 1) from the top 53 bits.
-            let u = ((bits >> 11) as f64 + 0.5) * (2.0 / (1u64 << 53) as f64) - 1.0;
+            // Uniform in (−1, 1) from the top 53 bits (via i64: one conversion instruction).
+            let u = ((bits >> 11) as i64 as f64 + 0.5) * (2.0 / (1u64 << 53) as f64) - 1.0;
             if u.abs() < self.ratio[i] {
                 return u * self.x[i];
             }
