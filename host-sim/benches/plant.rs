@@ -12,8 +12,9 @@
 //! step on average. Inputs are precomputed so only the plant is timed; each iteration runs
 //! 10 000 steps, continuing the same plant. Run with `cargo bench -p visco --bench plant`.
 
-use criterion::{black_box, criterion_group, criterion_main, Criterion, Throughput};
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use std::f64::consts::PI;
+use std::hint::black_box;
 use visco::plant::{Plant, PlantConfig};
 use visco::sample::Sample;
 
@@ -129,7 +130,27 @@ fn bench_scenario_with(c: &mut Criterion, name: &str, sc: Scenario, cfg: PlantCo
     );
 }
 
+/// One threshold refresh (the lateral-motion cost), moving 0.15 nm (one lateral DAC LSB)
+/// each time.
+fn footprint_bench(c: &mut Criterion) {
+    use visco::plant::contact::{Footprint, SampleNm};
+    let s = SampleNm::new(Sample::cell_phantom());
+    let mut fp = Footprint::default();
+    let mut x = 1000.0;
+    c.bench_function("footprint_update", |b| {
+        b.iter(|| {
+            x += 0.15;
+            if x > 4000.0 {
+                x = 1000.0;
+            }
+            fp.update(&s, x, 2550.0, 300.0);
+            black_box(fp.len)
+        })
+    });
+}
+
 fn plant_benches(c: &mut Criterion) {
+    footprint_bench(c);
     let sample = Sample::cell_phantom();
     bench_scenario(c, "free", free());
     bench_scenario_with(c, "free_ideal", free(), PlantConfig::ideal());

@@ -51,6 +51,8 @@ pub struct Footprint {
     /// Tip position of the last threshold computation.
     pub at: [f64; 2],
     built: bool,
+    scratch: Vec<f64>,
+    scratch2: Vec<f64>,
 }
 
 #[inline]
@@ -121,12 +123,21 @@ impl Footprint {
         }
         self.at = [x, y];
         let r2 = r * r;
-        for e in &mut self.cand {
+        // Three passes so the square roots run as one branch-free loop over a contiguous array
+        // (packed sqrtpd): the scalar square root is the cost of a refresh.
+        let q = &mut self.scratch;
+        q.clear();
+        q.extend(self.cand.iter().map(|e| {
             let dx = e.x - x;
             let dy = e.y - y;
-            let q = r2 - (dx * dx + dy * dy);
-            e.t = if q > 0.0 {
-                e.h - r + q.sqrt()
+            r2 - (dx * dx + dy * dy)
+        }));
+        let w = &mut self.scratch2;
+        w.clear();
+        w.extend(q.iter().map(|&v| v.max(0.0).sqrt()));
+        for ((e, &qq), &ww) in self.cand.iter_mut().zip(q.iter()).zip(w.iter()) {
+            e.t = if qq > 0.0 {
+                e.h - r + ww
             } else {
                 f64::NEG_INFINITY
             };

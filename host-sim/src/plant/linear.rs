@@ -60,7 +60,7 @@ impl Propagator {
         let a0 = k / m;
         let mu = -0.5 * c / m;
         let s2 = mu * mu - a0;
-        let phi = if s2 > 0.0 && s2.sqrt() * tau > 0.5 {
+        let phi = if s2 > 0.0 && s2.sqrt() * tau > 0.05 {
             // Overdamped, well separated eigenvalues.
             let s = s2.sqrt();
             let l2 = mu - s;
@@ -76,11 +76,14 @@ impl Propagator {
             // e^{μτ}·(cosh or cos)(|s|τ) and e^{μτ}·τ·(sinh(x)/x or sin(x)/x).
             let e = (mu * tau).exp();
             let (ch, shc) = if s2 >= 0.0 {
-                let x = s2.sqrt() * tau;
-                (x.cosh(), sinhc(x))
+                // sτ ≤ 0.05 here: the series are exact to rounding, no libm call.
+                let x2 = s2 * tau * tau;
+                let ch = 1.0 + x2 / 2.0 * (1.0 + x2 / 12.0 * (1.0 + x2 / 30.0 * (1.0 + x2 / 56.0)));
+                (ch, sinhc(x2.sqrt()))
             } else {
                 let x = (-s2).sqrt() * tau;
-                (x.cos(), sinc(x))
+                let (sn, cs) = x.sin_cos();
+                (cs, if x * x < 0.01 { sinc(x) } else { sn / x })
             };
             let ech = e * ch;
             let esh = e * tau * shc; // e^{μτ} sinh(sτ)/s

@@ -71,6 +71,11 @@ fn parse_err(path: &Path, line: Option<usize>, reason: impl Into<String>) -> Sam
     }
 }
 
+/// A coordinate for messages: nm, to 0.001 nm, without trailing zeros.
+fn nm(v_m: f64) -> String {
+    format!("{}", (v_m * 1e12).round() / 1e3)
+}
+
 /// Non-comment, non-blank lines with their 1-based line numbers.
 fn data_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
     text.lines().enumerate().filter_map(|(i, l)| {
@@ -336,8 +341,12 @@ impl Sample {
                     path,
                     Some(*line),
                     format!(
-                        "({}, {}) m is not on the lattice of pitch {pitch} m from ({x0}, {y0}) m",
-                        v[0], v[1]
+                        "({}, {}) nm is not on the lattice of pitch {} nm from ({}, {}) nm",
+                        nm(v[0]),
+                        nm(v[1]),
+                        nm(pitch),
+                        nm(x0),
+                        nm(y0)
                     ),
                 ));
             }
@@ -347,8 +356,9 @@ impl Sample {
                     path,
                     Some(*line),
                     format!(
-                        "({}, {}) m lies outside the lattice inferred from the distinct coordinates (uneven spacing?)",
-                        v[0], v[1]
+                        "({}, {}) nm lies outside the lattice inferred from the distinct coordinates (uneven spacing?)",
+                        nm(v[0]),
+                        nm(v[1])
                     ),
                 ));
             }
@@ -357,7 +367,7 @@ impl Sample {
                 return Err(parse_err(
                     path,
                     Some(*line),
-                    format!("element ({}, {}) m appears twice", v[0], v[1]),
+                    format!("element ({}, {}) nm appears twice", nm(v[0]), nm(v[1])),
                 ));
             }
             h[idx] = v[2];
@@ -369,15 +379,17 @@ impl Sample {
                 path,
                 None,
                 format!(
-                    "element at ({}, {}) m is missing: {} rows for a {nx} × {ny} lattice",
-                    x0 + (idx % nx) as f64 * pitch,
-                    y0 + (idx / nx) as f64 * pitch,
+                    "element at ({}, {}) nm is missing: {} rows for a {nx} × {ny} lattice",
+                    nm(x0 + (idx % nx) as f64 * pitch),
+                    nm(y0 + (idx / nx) as f64 * pitch),
                     rows.len()
                 ),
             ));
         }
-        Sample::new(nx, ny, pitch, [x0, y0], h, c, k)
-            .map_err(|e| parse_err(path, None, e.to_string()))
+        Sample::new(nx, ny, pitch, [x0, y0], h, c, k).map_err(|e| match e {
+            SampleError::Invalid(reason) => parse_err(path, None, reason),
+            other => other,
+        })
     }
 
     /// Write the element table (format 1), full precision, row-major.

@@ -12,6 +12,7 @@
 //!   the geometry the experiments need to build their reference maps.
 
 pub mod io;
+pub use io::GridSpec;
 mod phantom;
 
 use std::fmt;
