@@ -71,6 +71,11 @@ fn run(plant_cfg: &PlantConfig, sample: &Sample, input: &Input, t_end_us: f64, h
             dc.push(input(t1).0 - zt);
         }
     }
+    assert_eq!(
+        p.stats().event_cap_hits,
+        0,
+        "the event safety cap must never trigger"
+    );
     Run {
         z,
         dc,
