@@ -139,6 +139,9 @@ impl PlantConfig {
     /// instrument on: thermal noise, 16-bit ADC over ±1 µm, 16-bit Z DAC over ±3 µm (the piezo
     /// travel), 16-bit lateral DACs over −2.5…7.5 µm (a 10 µm scanner centred on the 5 µm
     /// sample, 0.15 nm LSB); 1 µs step (1 MHz loop).
+    ///
+    /// K, C and M are the paper's numbers as given; they make `f0 = √(K/M)/2π = 19.66 kHz` and
+    /// `Q = √(K·M)/C = 98.5`, which the paper rounds to 20 kHz and 100.
     pub fn paper() -> Self {
         PlantConfig {
             cantilever: Cantilever {

@@ -465,7 +465,8 @@ impl Plant {
     /// Place the tip at rest in static equilibrium with the piezo at `u` and the lateral
     /// position `(x, y)` (after DACs and travel clamps). The static force balance
     /// `K·(U − Z) + S_kt[n] − S_k[n]·Z = 0` is piecewise linear and strictly decreasing in Z, so
-    /// exactly one n is consistent. Time and noise stream continue.
+    /// exactly one n is consistent. Time and noise stream continue. Effects' held forces are
+    /// not part of this balance (their linear terms are).
     pub fn settle(&mut self, u_m: f64, x_m: f64, y_m: f64) {
         self.settle_nm(u_m / LENGTH, x_m / LENGTH, y_m / LENGTH)
     }
