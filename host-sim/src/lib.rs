@@ -1,3 +1,5 @@
 //! visco host side: simulated AFM, experiments, recordings, identify, diagnose.
 
+pub mod plant;
 pub mod recording;
+pub mod sample;
