@@ -84,7 +84,7 @@ fn render_sample_figures() {
             &p,
             &[(&e_dive, "DIVE"), (&e_sve, "SVE")],
             &MapStyle {
-                title: Some(format!("Error of {sym}, % of {sym}_max")),
+                title: Some(format!("Error of {sym} in % of {sym}_max")),
                 quantity: Some(Quantity::new(format!("error of {sym}"), "%")),
                 colormap: Colormap::Diverging,
                 mask: Some(&steep),

@@ -195,7 +195,7 @@ mod tests {
         assert_eq!(bar(0.0, 4), "    ");
         assert_eq!(bar(1.0, 4), "████");
         assert_eq!(bar(0.5, 4), "██  ");
-        assert_eq!(bar(0.5625, 4), "██▍ ");
+        assert_eq!(bar(0.5625, 4), "██▎ ");
         assert_eq!(fmt_duration(125.0), "2 min 05 s");
         assert_eq!(fmt_duration(0.42), "0.4 s");
     }

@@ -8,27 +8,79 @@ use ab_glyph::{Font, FontRef, GlyphId, PxScale, ScaleFont};
 
 use super::colormap::Rgb;
 
-/// DejaVu Sans (regular and bold), embedded by the `dejavu` crate.
-struct Fonts {
-    regular: FontRef<'static>,
-    bold: FontRef<'static>,
+/// DejaVu Sans, embedded by the `dejavu` crate (so no system font is needed).
+fn font() -> &'static FontRef<'static> {
+    static FONT: OnceLock<FontRef<'static>> = OnceLock::new();
+    FONT.get_or_init(|| {
+        FontRef::try_from_slice(dejavu::sans::regular()).expect("the embedded DejaVu Sans parses")
+    })
 }
 
-fn fonts() -> &'static Fonts {
-    static FONTS: OnceLock<Fonts> = OnceLock::new();
-    FONTS.get_or_init(|| Fonts {
-        regular: FontRef::try_from_slice(dejavu::sans::regular())
-            .expect("the embedded DejaVu Sans parses"),
-        bold: FontRef::try_from_slice(dejavu::sans::bold())
-            .expect("the embedded DejaVu Sans Bold parses"),
+/// True when the embedded font has a glyph for `c` (else it draws a box).
+pub(crate) fn has_glyph(c: char) -> bool {
+    font().glyph_id(c).0 != 0
+}
+
+/// The Unicode subscript of a letter or digit, if there is one.
+fn subscript_char(c: char) -> Option<char> {
+    Some(match c {
+        '0'..='9' => char::from_u32('₀' as u32 + (c as u32 - '0' as u32))?,
+        'a' => 'ₐ',
+        'e' => 'ₑ',
+        'h' => 'ₕ',
+        'i' => 'ᵢ',
+        'j' => 'ⱼ',
+        'k' => 'ₖ',
+        'l' => 'ₗ',
+        'm' => 'ₘ',
+        'n' => 'ₙ',
+        'o' => 'ₒ',
+        'p' => 'ₚ',
+        'r' => 'ᵣ',
+        's' => 'ₛ',
+        't' => 'ₜ',
+        'u' => 'ᵤ',
+        'v' => 'ᵥ',
+        'x' => 'ₓ',
+        _ => return None,
     })
+}
+
+/// Turns short TeX-like subscripts into Unicode ones: `F_k` → `Fₖ`, `h_max` → `hₘₐₓ`,
+/// `k_c,D`... A `_` is converted when the run of letters or digits after it is 1 to 3
+/// characters long, ends the word, and every character has a subscript glyph in the font;
+/// anything else (`h_dive.csv`) is left as written.
+pub(crate) fn subscripts(text: &str) -> String {
+    let chars: Vec<char> = text.chars().collect();
+    let mut out = String::with_capacity(text.len());
+    let mut k = 0;
+    while k < chars.len() {
+        if chars[k] == '_' && k > 0 {
+            let run: Vec<char> = chars[k + 1..]
+                .iter()
+                .copied()
+                .take_while(|c| c.is_ascii_alphanumeric())
+                .collect();
+            let subs: Option<Vec<char>> = run
+                .iter()
+                .map(|&c| subscript_char(c).filter(|&s| has_glyph(s)))
+                .collect();
+            if let (1..=3, Some(subs)) = (run.len(), subs) {
+                out.extend(subs);
+                k += 1 + run.len();
+                continue;
+            }
+        }
+        out.push(chars[k]);
+        k += 1;
+    }
+    out
 }
 
 /// A text style: size is the line height in pixels (ascent − descent).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct TextStyle {
     pub size: f32,
-    pub bold: bool,
     pub color: Rgb,
 }
 
@@ -36,28 +88,11 @@ impl TextStyle {
     pub fn new(size: f32) -> Self {
         TextStyle {
             size,
-            bold: false,
             color: [0, 0, 0],
         }
     }
-    pub fn bold(mut self) -> Self {
-        self.bold = true;
-        self
-    }
-    pub fn color(mut self, c: Rgb) -> Self {
-        self.color = c;
-        self
-    }
     fn font(&self) -> &'static FontRef<'static> {
-        if self.bold {
-            &fonts().bold
-        } else {
-            &fonts().regular
-        }
-    }
-    /// Ascent above the baseline, px.
-    pub fn ascent(&self) -> f64 {
-        self.font().as_scaled(PxScale::from(self.size)).ascent() as f64
+        font()
     }
     /// Height of a capital letter, px (for centring labels on ticks).
     pub fn cap_height(&self) -> f64 {
@@ -70,8 +105,9 @@ impl TextStyle {
     pub fn line_height(&self) -> f64 {
         self.size as f64
     }
-    /// Advance width of `text`, px.
+    /// Advance width of `text` as [`Canvas::text`] draws it, px.
     pub fn width(&self, text: &str) -> f64 {
+        let text = &subscripts(text);
         let f = self.font().as_scaled(PxScale::from(self.size));
         let mut x = 0.0f32;
         let mut prev: Option<GlyphId> = None;
@@ -102,7 +138,6 @@ pub(crate) enum VAlign {
     Top,
     /// The middle of the capital letters: labels centred on a tick.
     Middle,
-    Baseline,
     /// The bottom of the line box (descent).
     Bottom,
 }
@@ -153,11 +188,8 @@ impl Canvas {
         Canvas { w, h, px }
     }
 
-    pub fn bounds(&self) -> Rect {
-        Rect::new(0.0, 0.0, self.w as f64, self.h as f64)
-    }
-
     /// Raw RGB bytes, row by row from the top.
+    #[cfg(test)]
     pub fn pixels(&self) -> &[u8] {
         &self.px
     }
@@ -301,6 +333,7 @@ impl Canvas {
         v: VAlign,
         rotate: bool,
     ) -> Rect {
+        let text = &subscripts(text);
         let font = style.font();
         let sf = font.as_scaled(PxScale::from(style.size));
         let ascent = sf.ascent() as f64;
@@ -345,7 +378,6 @@ impl Canvas {
             + match v {
                 VAlign::Top => 0.0,
                 VAlign::Middle => ascent - style.cap_height() / 2.0,
-                VAlign::Baseline => ascent,
                 VAlign::Bottom => line_h,
             };
         let (ox, oy) = (x.round(), y.round());
@@ -514,6 +546,14 @@ mod tests {
         );
         assert!((r.w() - w).abs() < 1.0);
         assert!(c.pixels().iter().any(|&p| p < 100));
+    }
+
+    #[test]
+    fn subscript_markup() {
+        assert_eq!(subscripts("F_k (nN)"), "Fₖ (nN)");
+        assert_eq!(subscripts("% of h_max"), "% of hₘₐₓ");
+        assert_eq!(subscripts("h_dive.csv"), "h_dive.csv");
+        assert_eq!(subscripts("_x"), "_x");
     }
 
     #[test]

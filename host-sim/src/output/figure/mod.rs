@@ -276,13 +276,17 @@ fn auto_range(maps: &[&Map], cmap: Colormap) -> (f64, f64) {
 
 /// Slope shading factor per pixel of `m` (1 = flat), light from the upper left.
 fn relief_shade(m: &Map) -> Vec<f64> {
-    let g = m.gradient_magnitude();
-    let smax = g.stats().max;
-    let ex = if smax.is_finite() && smax > 0.0 {
-        1.5 / smax
-    } else {
-        1.0
-    };
+    // Vertical exaggeration from a typical slope (the 75th percentile of the non-zero
+    // ones), so the relief inside a cell shows and not only its steep rim.
+    let mut slopes: Vec<f64> = m
+        .gradient_magnitude()
+        .data
+        .into_iter()
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .collect();
+    slopes.sort_by(f64::total_cmp);
+    let typical = slopes.get(slopes.len() * 3 / 4).copied().unwrap_or(0.0);
+    let ex = if typical > 0.0 { 0.8 / typical } else { 1.0 };
     let gr = &m.grid;
     let (lx, ly, lz) = (-1.0f64, 1.0f64, 1.2f64);
     let ln = (lx * lx + ly * ly + lz * lz).sqrt();
@@ -305,7 +309,7 @@ fn relief_shade(m: &Map) -> Vec<f64> {
             let nn = (nx * nx + ny * ny + nz * nz).sqrt();
             let lam = (nx * lx + ny * ly + nz * lz) / (nn * ln);
             let flat = lz / ln;
-            let v = 0.72 + 0.28 * (lam / flat);
+            let v = 0.62 + 0.38 * (lam / flat);
             out[j * gr.nx + i] = if v.is_finite() {
                 v.clamp(0.35, 1.25)
             } else {
@@ -891,24 +895,31 @@ fn render_lines(plot: &LinePlot, scatter: bool) -> std::result::Result<Canvas, S
             .flat_map(|p| p.series.iter())
             .flat_map(|s| s.points.iter().map(|p| p.0))
     };
-    let (xlo, xhi) = match plot.x_range {
-        Some((a, b)) => sane_range(a, b),
+    // Each axis takes its display unit from the data (or the given range) *before* rounding
+    // the range out to ticks, so 0.8×10⁻⁶ stays "×10⁻⁷" and is not promoted by the rounding.
+    let (xlo, xhi, xdu) = match plot.x_range {
+        Some((a, b)) => {
+            let (a, b) = sane_range(a, b);
+            (a, b, display_unit(&plot.x.unit, a.abs().max(b.abs())))
+        }
         None => {
             let (a, b) = data_range(all_x(), plot.x_log).unwrap_or((0.0, 1.0));
-            if plot.x_log {
+            let du = display_unit(&plot.x.unit, a.abs().max(b.abs()));
+            let (a, b) = if plot.x_log {
                 log_range(a, b)
             } else if scatter {
                 let a = if a > 0.0 && a < 0.25 * b { 0.0 } else { a };
-                round_out(a, b, 8)
+                let (ra, rb) = round_out(a / du.factor, b / du.factor, 8);
+                (ra * du.factor, rb * du.factor)
             } else {
                 sane_range(a, b)
-            }
+            };
+            (a, b, du)
         }
     };
     if plot.x_log && !(xlo > 0.0) {
         return Err("a logarithmic x axis needs positive values".into());
     }
-    let xdu = display_unit(&plot.x.unit, xlo.abs().max(xhi.abs()));
     let xa = if plot.x_log {
         Axis::log(&plot.x, xlo, xhi, &xdu)
     } else {
@@ -916,8 +927,11 @@ fn render_lines(plot: &LinePlot, scatter: bool) -> std::result::Result<Canvas, S
     };
     let mut yaxes = Vec::new();
     for p in &plot.panels {
-        let (lo, hi) = match p.y_range {
-            Some((a, b)) => sane_range(a, b),
+        let (lo, hi, du) = match p.y_range {
+            Some((a, b)) => {
+                let (a, b) = sane_range(a, b);
+                (a, b, display_unit(&p.y.unit, a.abs().max(b.abs())))
+            }
             None => {
                 let vals = p.series.iter().flat_map(|s| {
                     s.points
@@ -926,13 +940,14 @@ fn render_lines(plot: &LinePlot, scatter: bool) -> std::result::Result<Canvas, S
                         .map(|q| q.1)
                 });
                 let (a, b) = data_range(vals, p.y_log).unwrap_or((0.0, 1.0));
+                let du = display_unit(&p.y.unit, a.abs().max(b.abs()));
                 if p.y_log {
-                    log_range(a, b)
+                    let (a, b) = log_range(a, b);
+                    (a, b, du)
                 } else {
                     let (a, b) = sane_range(a, b);
-                    let du = display_unit(&p.y.unit, a.abs().max(b.abs()));
                     let (ra, rb) = round_out(a / du.factor, b / du.factor, 5);
-                    (ra * du.factor, rb * du.factor)
+                    (ra * du.factor, rb * du.factor, du)
                 }
             }
         };
@@ -942,7 +957,6 @@ fn render_lines(plot: &LinePlot, scatter: bool) -> std::result::Result<Canvas, S
                 p.y.name
             ));
         }
-        let du = display_unit(&p.y.unit, lo.abs().max(hi.abs()));
         yaxes.push(if p.y_log {
             Axis::log(&p.y, lo, hi, &du)
         } else {

@@ -142,10 +142,24 @@ pub(crate) fn nice_step(span: f64, max_ticks: usize) -> f64 {
     10.0 * mag
 }
 
-/// Linear ticks over `[lo, hi]` with a 1–2–5 step, at most about `max_ticks` of them, all
-/// inside the range, labelled with the fewest decimals the step needs, with a true minus.
+/// Linear ticks over `[lo, hi]` with a 1–2–5 step, the finest step that gives at most
+/// `max_ticks` ticks inside the range, labelled with the fewest decimals the step needs, with
+/// a true minus.
 pub(crate) fn linear_ticks(lo: f64, hi: f64, max_ticks: usize) -> Ticks {
-    let step = nice_step(hi - lo, max_ticks);
+    let count = |step: f64| {
+        ((hi / step + 1e-9).floor() - (lo / step - 1e-9).ceil() + 1.0).max(0.0) as usize
+    };
+    let mut step = nice_step(hi - lo, max_ticks);
+    // nice_step is conservative; try the next finer 1-2-5 steps while they still fit.
+    for _ in 0..2 {
+        let m = (step / 10f64.powf(step.log10().floor())).round();
+        let finer = step * if m == 5.0 { 0.4 } else { 0.5 };
+        if count(finer) <= max_ticks && count(finer) >= 2 {
+            step = finer;
+        } else {
+            break;
+        }
+    }
     let eps = step * 1e-9;
     let first = (lo / step - 1e-9).ceil() as i64;
     let last = (hi / step + 1e-9).floor() as i64;
