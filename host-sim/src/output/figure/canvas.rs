@@ -209,9 +209,9 @@ impl Canvas {
         }
         let a = a.min(1.0);
         let k = ((y as u32 * self.w + x as u32) * 3) as usize;
-        for i in 0..3 {
-            let old = self.px[k + i] as f64;
-            self.px[k + i] = (old + (c[i] as f64 - old) * a).round() as u8;
+        for (dst, &src) in self.px[k..k + 3].iter_mut().zip(&c) {
+            let old = *dst as f64;
+            *dst = (old + (src as f64 - old) * a).round() as u8;
         }
     }
 
@@ -517,12 +517,10 @@ fn clip_segment(a: (f64, f64), b: (f64, f64), r: Rect) -> Option<((f64, f64), (f
             }
         }
     }
-    (t0 <= t1).then(|| {
-        (
-            (a.0 + t0 * dx, a.1 + t0 * dy),
-            (a.0 + t1 * dx, a.1 + t1 * dy),
-        )
-    })
+    (t0 <= t1).then_some((
+        (a.0 + t0 * dx, a.1 + t0 * dy),
+        (a.0 + t1 * dx, a.1 + t1 * dy),
+    ))
 }
 
 #[cfg(test)]

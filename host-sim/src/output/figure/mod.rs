@@ -508,7 +508,8 @@ fn render_map_panels(
     let bx = (x_start + n * pw + (n - 1.0) * gap + 26.0 * s).round();
     let br = Rect::new(bx, top.round(), bx + cbar_w.round(), (top + ph).round());
     for py in br.y0 as i64..br.y1 as i64 {
-        let t = (br.y1 - py as f64 - 0.5) / br.h();
+        // First and last rows get exactly the end colours.
+        let t = (br.y1 - 1.0 - py as f64) / (br.h() - 1.0).max(1.0);
         let col = style.colormap.at(t);
         c.fill_rect(
             Rect::new(br.x0, py as f64, br.x1, py as f64 + 1.0),
@@ -917,7 +918,7 @@ fn render_lines(plot: &LinePlot, scatter: bool) -> std::result::Result<Canvas, S
             (a, b, du)
         }
     };
-    if plot.x_log && !(xlo > 0.0) {
+    if plot.x_log && (xlo.is_nan() || xlo <= 0.0) {
         return Err("a logarithmic x axis needs positive values".into());
     }
     let xa = if plot.x_log {
@@ -951,7 +952,7 @@ fn render_lines(plot: &LinePlot, scatter: bool) -> std::result::Result<Canvas, S
                 }
             }
         };
-        if p.y_log && !(lo > 0.0) {
+        if p.y_log && (lo.is_nan() || lo <= 0.0) {
             return Err(format!(
                 "panel `{}`: a logarithmic axis needs positive values",
                 p.y.name
