@@ -307,3 +307,52 @@ fn writers_name_the_path_and_leave_nothing_behind() {
     assert_eq!(csv::read_csv(&p).unwrap().name, "second");
     assert!(Path::new(&p).exists());
 }
+
+/// Gwyddion itself opens our files, when it is installed (`apt-get install gwyddion`; CI does
+/// not have it, and the test then only says so). `gwyddion-thumbnailer` loads a file with
+/// Gwyddion's own GSF module and fails on anything it cannot read.
+#[test]
+fn gwyddion_opens_our_gsf_when_installed() {
+    let ok = std::process::Command::new("gwyddion-thumbnailer")
+        .arg("--version")
+        .output()
+        .is_ok();
+    if !ok {
+        eprintln!("gwyddion-thumbnailer not installed: skipping the check with Gwyddion");
+        return;
+    }
+    let dir = tmp();
+    let mut m = small("c (SVE)");
+    m.set(2, 2, f64::NAN);
+    for (name, policy) in [
+        ("fill.gsf", NanPolicy::FillMean),
+        ("keep.gsf", NanPolicy::Keep),
+    ] {
+        let p = dir.path().join(name);
+        gsf::write_gsf(&p, &m, policy).unwrap();
+        let thumb = dir.path().join(format!("{name}.png"));
+        let out = std::process::Command::new("gwyddion-thumbnailer")
+            .args(["gnome2", "64"])
+            .arg(&p)
+            .arg(&thumb)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(thumb.exists());
+    }
+    // And refuses a broken one, so the check above means something.
+    let bad = dir.path().join("bad.gsf");
+    let bytes = gsf::gsf_bytes(&m, NanPolicy::Keep);
+    std::fs::write(&bad, &bytes[..bytes.len() - 1]).unwrap();
+    let out = std::process::Command::new("gwyddion-thumbnailer")
+        .args(["gnome2", "64"])
+        .arg(&bad)
+        .arg(dir.path().join("bad.png"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+}

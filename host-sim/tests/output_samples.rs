@@ -76,6 +76,22 @@ fn render_sample_figures() {
         )
         .unwrap();
         out.push(p);
+        if n == 1 {
+            // The same figure at print resolution (every size doubled).
+            let p = dir.join("map_c_print.png");
+            figure::map_panels(
+                &p,
+                &[(given, "given"), (&dive, "DIVE"), (&sve, "SVE")],
+                &MapStyle {
+                    title: Some(title.to_string()),
+                    quantity: Some(Quantity::new(*sym, given.unit.clone())),
+                    scale: 2.0,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            out.push(p);
+        }
         // Errors in % of the property's maximum, on each estimate's grid, steep pixels hatched.
         let e_dive = Map::error_percent(&dive, &given.resample_mean(dive_grid), *full).unwrap();
         let e_sve = Map::error_percent(&sve, &given.resample_mean(sve_grid), *full).unwrap();

@@ -256,7 +256,7 @@ impl Map {
         self.data[j * nx + i] = v;
     }
 
-    /// The same map under another name (and unit).
+    /// The same map under another name.
     pub fn renamed(mut self, name: impl Into<String>) -> Self {
         self.name = name.into();
         self

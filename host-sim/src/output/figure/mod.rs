@@ -6,6 +6,20 @@
 //! (µm and nm for lengths, `×10⁻⁷ N·s/m` for damping, `%` for errors; see
 //! [`ticks::display_unit`]). Ticks fall on 1–2–5 steps. Text is DejaVu Sans, embedded.
 //! Every function writes its PNG atomically and returns an [`OutputError`] naming the path.
+//!
+//! # How they are drawn
+//! A small rasteriser of our own (`canvas.rs`): anti-aliased lines, circles and rectangles,
+//! text laid out with ab_glyph (kerning, baseline-exact anchors, 90° rotation), 8-bit RGB
+//! PNG through the `png` crate. plotters was tried first; with an embedded font its bitmap
+//! text sat off its ticks and its lines were not anti-aliased, and the layout we need
+//! (shared colour bars, stacked panels, legends that avoid the data) was easier to own.
+//!
+//! # Font
+//! DejaVu Sans 2.37, embedded in the binary from the `dejavu` crate (the crate is
+//! MIT/Apache-2.0; the font is under the Bitstream Vera licence, with the DejaVu changes in
+//! the public domain: free to use, embed and redistribute, provided a modified font is
+//! renamed). No system font is read, so a clean CI machine draws the same pixels. It covers
+//! µ, ×, ·, δ, superscript digits and the subscripts `F_k` → `Fₖ` turns into.
 
 mod canvas;
 pub mod colormap;
