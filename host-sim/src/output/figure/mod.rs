@@ -427,8 +427,14 @@ fn render_map_panels(
         .map(|(_, ya)| max_label_width(&ya.ticks, &f.tick))
         .fold(0.0, f64::max);
     let left_axis = tl + 4.0 * s + ylab_w + 8.0 * s + f.axis.line_height();
+    // Panels sit close when they share y, but never so close that the last x tick label of
+    // one panel touches the first of the next.
+    let xlab_w = axes
+        .iter()
+        .map(|(xa, _)| max_label_width(&xa.ticks, &f.tick))
+        .fold(0.0, f64::max);
     let gap = if share_y {
-        22.0 * s
+        (22.0 * s).max(xlab_w + 10.0 * s)
     } else {
         left_axis + 10.0 * s
     };
