@@ -140,6 +140,11 @@ pub enum Command {
         /// Iterations of the two-instruction `subs`/`bne` loop.
         iterations: u32,
     },
+    /// Ends the emulation with an exit code (QEMU board: semihosting exit, after the Ack).
+    Exit {
+        /// Process exit code of QEMU (0 = success).
+        code: u8,
+    },
 }
 
 /// Parameter ids of [`Command::SetParam`]. The board's own conversion factors live here;
@@ -311,6 +316,7 @@ mod kind {
     pub const REQUEST_STATUS: u8 = 0x0A;
     pub const BENCH: u8 = 0x0B;
     pub const CALIBRATE: u8 = 0x0C;
+    pub const EXIT: u8 = 0x0D;
 
     pub const HELLO: u8 = 0x81;
     pub const ACK: u8 = 0x82;
@@ -417,6 +423,10 @@ impl Command {
                 w.u8(kind::CALIBRATE)?;
                 w.u32(iterations)
             }
+            Command::Exit { code } => {
+                w.u8(kind::EXIT)?;
+                w.u8(code)
+            }
         }
     }
 
@@ -487,6 +497,7 @@ impl Command {
             kind::CALIBRATE => Command::Calibrate {
                 iterations: r.u32()?,
             },
+            kind::EXIT => Command::Exit { code: r.u8()? },
             other => return Err(DecodeError::UnknownKind(other)),
         };
         finish(&r, cmd)

@@ -55,6 +55,7 @@ fn all_commands() -> Vec<Command> {
             period_ticks: 50,
         },
         Command::Calibrate { iterations: 12345 },
+        Command::Exit { code: 3 },
     ]
 }
 

@@ -1,0 +1,359 @@
+//! Board-independent firmware: the loop interrupt's state, the main loop that talks to the
+//! host, and the panic handler.
+//!
+//! Ownership: the loop state (`LOOP`) belongs to the loop interrupt. The main loop touches
+//! it only through [`with_loop`], which masks the loop interrupt for the duration (a few
+//! hundred cycles, only on configuration commands, never per sample). Per-sample data moves
+//! through lock-free SPSC queues: telemetry loop → main, core commands main → loop, and on
+//! QEMU replay samples main → loop.
+
+use crate::board;
+use core::cell::UnsafeCell;
+use core::sync::atomic::{AtomicU32, Ordering};
+use visco_firmware::core_glue::{self, CoreCommand, LoopCore, StagedConfig};
+use visco_firmware::loop_body::{
+    Counters, Item, Tagged, COMMAND_DEPTH, TELEMETRY_DEPTH,
+};
+use visco_firmware::scale::Scale;
+use visco_firmware::spsc::Spsc;
+use visco_protocol::{
+    ack, frame, param, Command, FrameDecoder, SeqTracker, StatusFrame, Telemetry, MAX_WIRE,
+    PROTOCOL_VERSION,
+};
+
+/// The loop state, owned by the loop interrupt (see the module comment).
+pub struct IsrCell<T>(UnsafeCell<Option<T>>);
+
+// SAFETY: accessed only by the loop interrupt, or by thread mode while that interrupt is
+// masked (`with_loop`), so never from two contexts at once.
+unsafe impl<T: Send> Sync for IsrCell<T> {}
+
+impl<T> IsrCell<T> {
+    const fn new() -> Self {
+        Self(UnsafeCell::new(None))
+    }
+    /// # Safety
+    /// Only from the loop interrupt, or with the loop interrupt masked.
+    #[inline(always)]
+    pub unsafe fn get(&self) -> Option<&mut T> {
+        // SAFETY: exclusive access per the caller's contract.
+        unsafe { (*self.0.get()).as_mut() }
+    }
+    /// # Safety
+    /// Only with the loop interrupt masked.
+    unsafe fn set(&self, v: T) {
+        // SAFETY: exclusive access per the caller's contract.
+        unsafe { *self.0.get() = Some(v) };
+    }
+}
+
+pub static LOOP: IsrCell<board::Loop> = IsrCell::new();
+static TELEMETRY: Spsc<Tagged, TELEMETRY_DEPTH> = Spsc::new();
+static COMMANDS: Spsc<CoreCommand, COMMAND_DEPTH> = Spsc::new();
+pub static COUNTERS: Counters = Counters::new();
+/// Sequence numbers of firmware → host frames, taken by the loop and the main loop alike.
+pub static TX_SEQ: AtomicU32 = AtomicU32::new(0);
+
+/// The loop interrupt body: every board's loop interrupt handler calls this after
+/// acknowledging its interrupt source.
+#[inline(always)]
+pub fn loop_interrupt() {
+    // SAFETY: called from the loop interrupt only.
+    if let Some(l) = unsafe { LOOP.get() } {
+        l.on_sample();
+    }
+}
+
+/// Runs `f` on the loop state with the loop interrupt masked.
+pub fn with_loop<R>(f: impl FnOnce(&mut board::Loop) -> R) -> Option<R> {
+    board::mask_loop();
+    // SAFETY: the loop interrupt is masked, and thread mode cannot preempt it.
+    let r = unsafe { LOOP.get() }.map(f);
+    board::unmask_loop();
+    r
+}
+
+/// The byte link to the host (UART).
+pub trait Link {
+    /// A received byte, if one is waiting.
+    fn try_read(&mut self) -> Option<u8>;
+    /// Sends bytes (blocks the main loop, never the loop interrupt).
+    fn write_all(&mut self, bytes: &[u8]);
+}
+
+/// The host link's transmit side (frames with sequence numbers).
+pub struct Tx<L: Link> {
+    pub link: L,
+    buf: [u8; MAX_WIRE],
+}
+
+impl<L: Link> Tx<L> {
+    pub fn send(&mut self, t: &Telemetry) {
+        let seq = TX_SEQ.fetch_add(1, Ordering::Relaxed);
+        self.send_with_seq(seq, t);
+    }
+    fn send_with_seq(&mut self, seq: u32, t: &Telemetry) {
+        match frame::encode(seq, t, &mut self.buf) {
+            Ok(n) => self.link.write_all(self.buf.get(..n).unwrap_or(&[])),
+            // Cannot happen for the fixed-size messages; counted by the gap it leaves.
+            Err(_) => defmt::error!("telemetry frame too long"),
+        }
+    }
+    /// Sends everything the loop queued.
+    fn drain(&mut self, rx: &mut visco_firmware::spsc::Consumer<'static, Tagged, TELEMETRY_DEPTH>) {
+        while let Some(t) = rx.pop() {
+            let msg = match t.item {
+                Item::Step(s) => Telemetry::Step(s),
+                Item::Record(r) => Telemetry::Record(r),
+            };
+            self.send_with_seq(t.seq, &msg);
+        }
+    }
+}
+
+/// Board-level configuration staged by `SetParam`.
+struct BoardScales {
+    adc: Scale,
+    dac: Scale,
+    lateral: Scale,
+}
+
+pub fn run() -> ! {
+    let mut b = board::init();
+    defmt::info!(
+        "visco firmware: board {=str}, core {=u8}, protocol {=u16}",
+        board::NAME,
+        core_glue::CORE_ID,
+        PROTOCOL_VERSION
+    );
+    let (Some((tel_tx, mut tel_rx)), Some((mut cmd_tx, cmd_rx))) =
+        (TELEMETRY.split(), COMMANDS.split())
+    else {
+        board::fatal(4)
+    };
+    // Defaults: 1 nm per code everywhere, until the host configures the board.
+    let (Some(unit), Some(lat)) = (Scale::new_16bit(1e-9), Scale::new_16bit(1e-9)) else {
+        board::fatal(5)
+    };
+    let mut scales = BoardScales {
+        adc: unit,
+        dac: unit,
+        lateral: lat,
+    };
+    let mut staged = StagedConfig::new();
+    let core = core_glue::build_core(&staged, &scales.dac).ok();
+    let state = board::make_loop(&mut b, scales.adc, scales.lateral, core, tel_tx, cmd_rx, &COUNTERS, &TX_SEQ);
+    board::mask_loop();
+    // SAFETY: the loop interrupt is masked.
+    unsafe { LOOP.set(state) };
+    board::unmask_loop();
+
+    let mut tx = Tx {
+        link: board::take_link(&mut b),
+        buf: [0; MAX_WIRE],
+    };
+    tx.send(&Telemetry::Hello {
+        protocol: PROTOCOL_VERSION,
+        board: board::BOARD_ID,
+        core: core_glue::CORE_ID,
+    });
+
+    let mut rx = FrameDecoder::new();
+    let mut rx_seq = SeqTracker::starting_at(0);
+    let mut rx_bad: u32 = 0;
+    let mut status_every: u32 = 0;
+    let mut next_status: u32 = 0;
+    loop {
+        tx.drain(&mut tel_rx);
+        board::poll(&mut b, TELEMETRY_DEPTH - tel_rx.len());
+
+        if status_every != 0 {
+            let samples = COUNTERS.samples.load(Ordering::Relaxed);
+            if samples.wrapping_sub(next_status) as i32 >= 0 {
+                next_status = samples.wrapping_add(status_every);
+                let s = status(rx_bad, &rx_seq);
+                tx.send(&Telemetry::Status(s));
+            }
+        }
+
+        // Host bytes, as long as a whole replay block would still fit.
+        while board::can_accept_command(&b) {
+            let Some(byte) = tx.link.try_read() else { break };
+            let Some(res) = rx.push::<Command>(byte) else { continue };
+            let (seq, cmd) = match res {
+                Ok(x) => x,
+                Err(_) => {
+                    rx_bad = rx_bad.wrapping_add(1);
+                    continue;
+                }
+            };
+            rx_seq.observe(seq);
+            // Whatever the loop queued before this command goes out first, so the host sees
+            // telemetry and acks in the order they happened.
+            tx.drain(&mut tel_rx);
+            let code = match cmd {
+                Command::Ping { .. } => ack::OK,
+                Command::SetParam { id, value } => set_param(&mut scales, &mut staged, id, value),
+                Command::ApplyConfig => apply_config(&scales, &staged),
+                Command::Start(mode) => {
+                    if with_loop(|l| l.core.is_some()) == Some(true) {
+                        push_cmd(&mut cmd_tx, CoreCommand::Start(mode))
+                    } else {
+                        ack::INVALID // no configuration applied yet
+                    }
+                }
+                Command::Stop => push_cmd(&mut cmd_tx, CoreCommand::Stop),
+                Command::SetSource(src) => board::set_source(&mut b, src),
+                Command::Feed(block) => {
+                    let code = board::feed(&mut b, &block);
+                    if code == ack::OK {
+                        // Replay blocks are not acknowledged one by one: the Step frames are
+                        // the answer, and an ack per block would cost link bandwidth.
+                        continue;
+                    }
+                    code
+                }
+                Command::SetTelemetry {
+                    per_sample,
+                    status_every: every,
+                } => {
+                    status_every = every;
+                    next_status = COUNTERS.samples.load(Ordering::Relaxed);
+                    with_loop(|l| l.per_sample = per_sample);
+                    ack::OK
+                }
+                Command::RequestStatus => {
+                    let s = status(rx_bad, &rx_seq);
+                    tx.send(&Telemetry::Status(s));
+                    ack::OK
+                }
+                Command::Bench {
+                    mode,
+                    steps,
+                    period_ticks,
+                } => match board::bench(&mut b, mode, steps, period_ticks) {
+                    Some(frame) => {
+                        tx.drain(&mut tel_rx);
+                        tx.send(&Telemetry::Bench(frame));
+                        ack::OK
+                    }
+                    None => ack::UNSUPPORTED,
+                },
+                Command::Calibrate { iterations } => match board::calibrate(iterations) {
+                    Some(frame) => {
+                        tx.send(&Telemetry::Calibration(frame));
+                        ack::OK
+                    }
+                    None => ack::UNSUPPORTED,
+                },
+                Command::Exit { code } => {
+                    tx.drain(&mut tel_rx);
+                    let s = status(rx_bad, &rx_seq);
+                    tx.send(&Telemetry::Status(s));
+                    tx.send(&Telemetry::Ack {
+                        cmd_seq: seq,
+                        code: ack::OK,
+                    });
+                    defmt::info!("exit {=u8} after {=u32} samples", code, s.samples);
+                    board::exit(code)
+                }
+            };
+            tx.send(&Telemetry::Ack { cmd_seq: seq, code });
+        }
+    }
+}
+
+fn push_cmd(
+    q: &mut visco_firmware::spsc::Producer<'static, CoreCommand, COMMAND_DEPTH>,
+    c: CoreCommand,
+) -> u8 {
+    match q.push(c) {
+        Ok(()) => ack::OK,
+        Err(_) => ack::BUSY,
+    }
+}
+
+fn set_param(scales: &mut BoardScales, staged: &mut StagedConfig, id: u16, value: f64) -> u8 {
+    let scale = || Scale::new_16bit(value as f32);
+    let slot = match id {
+        param::ADC_METRES_PER_CODE => &mut scales.adc,
+        param::DAC_METRES_PER_CODE => &mut scales.dac,
+        param::LATERAL_METRES_PER_CODE => &mut scales.lateral,
+        _ => {
+            return if staged.stage(id, value) {
+                ack::OK
+            } else {
+                ack::INVALID
+            }
+        }
+    };
+    match scale() {
+        Some(s) => {
+            *slot = s;
+            ack::OK
+        }
+        None => ack::INVALID,
+    }
+}
+
+fn apply_config(scales: &BoardScales, staged: &StagedConfig) -> u8 {
+    let running = with_loop(|l| l.core.as_ref().and_then(|c| c.mode()).is_some());
+    if running != Some(false) {
+        return ack::BUSY;
+    }
+    // Built here, in thread mode; the loop only receives the finished core.
+    match core_glue::build_core(staged, &scales.dac) {
+        Ok(core) => {
+            let (adc, lateral) = (scales.adc, scales.lateral);
+            with_loop(move |l| {
+                l.core = Some(core);
+                board::set_scales(l, adc, lateral);
+            });
+            ack::OK
+        }
+        Err(_) => ack::INVALID,
+    }
+}
+
+fn status(rx_bad: u32, rx_seq: &SeqTracker) -> StatusFrame {
+    let (state, estimates) = with_loop(|l| match l.core.as_ref() {
+        Some(c) => (
+            match c.mode() {
+                None => 0,
+                Some(core_glue::Mode::Dive) => 1,
+                Some(core_glue::Mode::Sve) => 2,
+            },
+            c.estimates(),
+        ),
+        None => (0, [0.0; 3]),
+    })
+    .unwrap_or((0, [0.0; 3]));
+    StatusFrame {
+        samples: COUNTERS.samples.load(Ordering::Relaxed),
+        starved: COUNTERS.starved.load(Ordering::Relaxed),
+        telemetry_dropped: COUNTERS.telemetry_dropped.load(Ordering::Relaxed),
+        rx_bad_frames: rx_bad,
+        rx_lost_frames: rx_seq.lost().min(u32::MAX as u64) as u32,
+        state,
+        estimates,
+    }
+}
+
+#[cfg(not(feature = "panic-never"))]
+#[panic_handler]
+fn panic(_info: &core::panic::PanicInfo) -> ! {
+    defmt::error!("panic");
+    board::fatal(3)
+}
+
+/// With `panic-never`, any panic path that survives optimisation references this undefined
+/// symbol and the link fails, naming it: the proof that the image cannot panic.
+#[cfg(feature = "panic-never")]
+#[panic_handler]
+fn panic(_info: &core::panic::PanicInfo) -> ! {
+    unsafe extern "Rust" {
+        fn visco_firmware_has_a_reachable_panic_path() -> !;
+    }
+    // SAFETY: never executed; the symbol does not exist, so a reachable call fails the link.
+    unsafe { visco_firmware_has_a_reachable_panic_path() }
+}
