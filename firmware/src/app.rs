@@ -11,9 +11,7 @@ use crate::board;
 use core::cell::UnsafeCell;
 use core::sync::atomic::{AtomicU32, Ordering};
 use visco_firmware::core_glue::{self, CoreCommand, LoopCore, StagedConfig};
-use visco_firmware::loop_body::{
-    Counters, Item, Tagged, COMMAND_DEPTH, TELEMETRY_DEPTH,
-};
+use visco_firmware::loop_body::{Counters, Item, Tagged, COMMAND_DEPTH, TELEMETRY_DEPTH};
 use visco_firmware::scale::Scale;
 use visco_firmware::spsc::Spsc;
 use visco_protocol::{
@@ -58,6 +56,10 @@ pub static TX_SEQ: AtomicU32 = AtomicU32::new(0);
 /// acknowledging its interrupt source.
 #[inline(always)]
 pub fn loop_interrupt() {
+    #[cfg(feature = "panic-canary")]
+    if COUNTERS.samples.load(Ordering::Relaxed) == 0xDEAD_BEEF {
+        panic!("canary");
+    }
     // SAFETY: called from the loop interrupt only.
     if let Some(l) = unsafe { LOOP.get() } {
         l.on_sample();
@@ -142,7 +144,16 @@ pub fn run() -> ! {
     };
     let mut staged = StagedConfig::new();
     let core = core_glue::build_core(&staged, &scales.dac).ok();
-    let state = board::make_loop(&mut b, scales.adc, scales.lateral, core, tel_tx, cmd_rx, &COUNTERS, &TX_SEQ);
+    let state = board::make_loop(
+        &mut b,
+        scales.adc,
+        scales.lateral,
+        core,
+        tel_tx,
+        cmd_rx,
+        &COUNTERS,
+        &TX_SEQ,
+    );
     board::mask_loop();
     // SAFETY: the loop interrupt is masked.
     unsafe { LOOP.set(state) };
@@ -178,8 +189,12 @@ pub fn run() -> ! {
 
         // Host bytes, as long as a whole replay block would still fit.
         while board::can_accept_command(&b) {
-            let Some(byte) = tx.link.try_read() else { break };
-            let Some(res) = rx.push::<Command>(byte) else { continue };
+            let Some(byte) = tx.link.try_read() else {
+                break;
+            };
+            let Some(res) = rx.push::<Command>(byte) else {
+                continue;
+            };
             let (seq, cmd) = match res {
                 Ok(x) => x,
                 Err(_) => {

@@ -30,7 +30,9 @@ use visco_firmware::loop_body::{
 };
 use visco_firmware::scale::Scale;
 use visco_firmware::spsc::{Consumer, Producer, Spsc};
-use visco_protocol::{ack, board, BenchFrame, CalibrationFrame, FeedBlock, FeedSamples, Source, MAX_FEED};
+use visco_protocol::{
+    ack, board, BenchFrame, CalibrationFrame, FeedBlock, FeedSamples, Source, MAX_FEED,
+};
 
 pub const NAME: &str = "qemu-mps2-an500";
 pub const BOARD_ID: u8 = board::QEMU_MPS2_AN500;
@@ -364,7 +366,9 @@ pub fn make_loop(
     counters: &'static Counters,
     seq: &'static AtomicU32,
 ) -> Loop {
-    let Some(feed) = b.feed_rx.take() else { fatal(8) };
+    let Some(feed) = b.feed_rx.take() else {
+        fatal(8)
+    };
     let mut adc = Ad4000::new(device(VirtualAdcBus), Ad4000Config::AD4000);
     let (Ok(()) | Err(_)) = adc.configure();
     let (Ok(()) | Err(_)) = adc.prime();
@@ -427,9 +431,18 @@ fn timer_stop() {
 fn timer_start(period_ticks: u32) {
     // SAFETY: TIMER0 registers. The timer counts RELOAD … 0: a period of RELOAD + 1 ticks.
     unsafe {
-        write_volatile(reg(TIMER0_BASE, TIMER_RELOAD), period_ticks.saturating_sub(1));
-        write_volatile(reg(TIMER0_BASE, TIMER_VALUE), period_ticks.saturating_sub(1));
-        write_volatile(reg(TIMER0_BASE, TIMER_CTRL), TIMER_CTRL_EN | TIMER_CTRL_IRQEN);
+        write_volatile(
+            reg(TIMER0_BASE, TIMER_RELOAD),
+            period_ticks.saturating_sub(1),
+        );
+        write_volatile(
+            reg(TIMER0_BASE, TIMER_VALUE),
+            period_ticks.saturating_sub(1),
+        );
+        write_volatile(
+            reg(TIMER0_BASE, TIMER_CTRL),
+            TIMER_CTRL_EN | TIMER_CTRL_IRQEN,
+        );
     }
 }
 
@@ -545,7 +558,10 @@ pub fn bench(b: &mut Board, mode: Mode, steps: u32, period_ticks: u32) -> Option
         return None;
     }
     let counter = app::COUNTERS.samples.as_ptr();
-    let target = app::COUNTERS.samples.load(Ordering::Relaxed).wrapping_add(steps);
+    let target = app::COUNTERS
+        .samples
+        .load(Ordering::Relaxed)
+        .wrapping_add(steps);
     let (t0, t1, idle): (u32, u32, u32);
     let w0 = timer1_now();
     timer_start(period_ticks);

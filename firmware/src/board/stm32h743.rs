@@ -1,0 +1,1 @@
+//! STM32H743 board (placeholder until written).
