@@ -9,14 +9,14 @@
 
 use crate::board;
 use core::cell::UnsafeCell;
-use core::sync::atomic::{AtomicU32, Ordering};
+use core::sync::atomic::Ordering;
 use visco_firmware::core_glue::{self, CoreCommand, LoopCore, StagedConfig};
-use visco_firmware::loop_body::{Counters, Item, Tagged, COMMAND_DEPTH, TELEMETRY_DEPTH};
+use visco_firmware::loop_body::{Counters, Item, COMMAND_DEPTH, TELEMETRY_DEPTH};
 use visco_firmware::scale::Scale;
-use visco_firmware::spsc::Spsc;
+use visco_firmware::spsc::{Consumer, Producer, Spsc};
 use visco_protocol::{
-    ack, frame, param, Command, FrameDecoder, SeqTracker, StatusFrame, Telemetry, MAX_WIRE,
-    PROTOCOL_VERSION,
+    ack, frame, param, Command, FrameDecoder, PerSample, SeqTracker, StatusFrame, StepBlockFrame,
+    StepDigest, StepFrame, Telemetry, MAX_FEED, MAX_WIRE, PROTOCOL_VERSION,
 };
 
 /// The loop state, owned by the loop interrupt (see the module comment).
@@ -46,11 +46,9 @@ impl<T> IsrCell<T> {
 }
 
 pub static LOOP: IsrCell<board::Loop> = IsrCell::new();
-static TELEMETRY: Spsc<Tagged, TELEMETRY_DEPTH> = Spsc::new();
+static TELEMETRY: Spsc<Item, TELEMETRY_DEPTH> = Spsc::new();
 static COMMANDS: Spsc<CoreCommand, COMMAND_DEPTH> = Spsc::new();
 pub static COUNTERS: Counters = Counters::new();
-/// Sequence numbers of firmware → host frames, taken by the loop and the main loop alike.
-pub static TX_SEQ: AtomicU32 = AtomicU32::new(0);
 
 /// The loop interrupt body: every board's loop interrupt handler calls this after
 /// acknowledging its interrupt source.
@@ -83,32 +81,87 @@ pub trait Link {
     fn write_all(&mut self, bytes: &[u8]);
 }
 
-/// The host link's transmit side (frames with sequence numbers).
+/// The host link's transmit side. Frame sequence numbers are taken here, in send order, so
+/// they are strictly increasing on the wire; telemetry the loop could not queue is added to
+/// the sequence as a gap of the same size, so the host counts it as lost.
 pub struct Tx<L: Link> {
     pub link: L,
     buf: [u8; MAX_WIRE],
+    seq: u32,
+    dropped_seen: u32,
+    /// Per-sample outputs as compact blocks.
+    pub blocks: bool,
+    block: StepBlockFrame,
+    digest: StepDigest,
 }
 
 impl<L: Link> Tx<L> {
-    pub fn send(&mut self, t: &Telemetry) {
-        let seq = TX_SEQ.fetch_add(1, Ordering::Relaxed);
-        self.send_with_seq(seq, t);
+    fn new(link: L) -> Self {
+        Self {
+            link,
+            buf: [0; MAX_WIRE],
+            seq: 0,
+            dropped_seen: 0,
+            blocks: false,
+            block: StepBlockFrame::default(),
+            digest: StepDigest::new(),
+        }
     }
-    fn send_with_seq(&mut self, seq: u32, t: &Telemetry) {
+
+    pub fn send(&mut self, t: &Telemetry) {
+        let dropped = COUNTERS.telemetry_dropped.load(Ordering::Relaxed);
+        self.seq = self
+            .seq
+            .wrapping_add(dropped.wrapping_sub(self.dropped_seen));
+        self.dropped_seen = dropped;
+        let seq = self.seq;
+        self.seq = self.seq.wrapping_add(1);
         match frame::encode(seq, t, &mut self.buf) {
             Ok(n) => self.link.write_all(self.buf.get(..n).unwrap_or(&[])),
-            // Cannot happen for the fixed-size messages; counted by the gap it leaves.
+            // Cannot happen for the fixed-size messages; the gap it leaves reports it.
             Err(_) => defmt::error!("telemetry frame too long"),
         }
     }
+
     /// Sends everything the loop queued.
-    fn drain(&mut self, rx: &mut visco_firmware::spsc::Consumer<'static, Tagged, TELEMETRY_DEPTH>) {
-        while let Some(t) = rx.pop() {
-            let msg = match t.item {
-                Item::Step(s) => Telemetry::Step(s),
-                Item::Record(r) => Telemetry::Record(r),
-            };
-            self.send_with_seq(t.seq, &msg);
+    fn drain(&mut self, rx: &mut Consumer<'static, Item, TELEMETRY_DEPTH>) {
+        while let Some(item) = rx.pop() {
+            match item {
+                Item::Step(s) if self.blocks => self.add_to_block(&s),
+                Item::Step(s) => self.send(&Telemetry::Step(s)),
+                Item::Record(r) => self.send(&Telemetry::Record(r)),
+            }
+        }
+    }
+
+    fn add_to_block(&mut self, s: &StepFrame) {
+        let len = self.block.len as u32;
+        if len > 0 && s.index != self.block.first_index.wrapping_add(len) {
+            self.flush_block(); // a dropped sample: start a new block
+        }
+        if self.block.len == 0 {
+            self.block.first_index = s.index;
+            self.digest = StepDigest::new();
+        }
+        let i = self.block.len as usize;
+        if let (Some(c), Some(st)) = (self.block.u_codes.get_mut(i), self.block.status.get_mut(i)) {
+            *c = s.u_code.clamp(-32768, 32767) as i16;
+            *st = s.status;
+            self.digest.add(s);
+            self.block.len += 1;
+        }
+        if self.block.len as usize >= MAX_FEED {
+            self.flush_block();
+        }
+    }
+
+    /// Sends the partial block, if any.
+    fn flush_block(&mut self) {
+        if self.block.len > 0 {
+            self.block.digest = self.digest.finish();
+            let b = self.block;
+            self.send(&Telemetry::StepBlock(b));
+            self.block.len = 0;
         }
     }
 }
@@ -152,17 +205,13 @@ pub fn run() -> ! {
         tel_tx,
         cmd_rx,
         &COUNTERS,
-        &TX_SEQ,
     );
     board::mask_loop();
     // SAFETY: the loop interrupt is masked.
     unsafe { LOOP.set(state) };
     board::unmask_loop();
 
-    let mut tx = Tx {
-        link: board::take_link(&mut b),
-        buf: [0; MAX_WIRE],
-    };
+    let mut tx = Tx::new(board::take_link(&mut b));
     tx.send(&Telemetry::Hello {
         protocol: PROTOCOL_VERSION,
         board: board::BOARD_ID,
@@ -176,6 +225,10 @@ pub fn run() -> ! {
     let mut next_status: u32 = 0;
     loop {
         tx.drain(&mut tel_rx);
+        if !board::samples_pending(&b) {
+            // The sample stream paused (end of a replay, or a slow host): send what we have.
+            tx.flush_block();
+        }
         board::poll(&mut b, TELEMETRY_DEPTH - tel_rx.len());
 
         if status_every != 0 {
@@ -188,10 +241,12 @@ pub fn run() -> ! {
         }
 
         // Host bytes, as long as a whole replay block would still fit.
+        let mut received = false;
         while board::can_accept_command(&b) {
             let Some(byte) = tx.link.try_read() else {
                 break;
             };
+            received = true;
             let Some(res) = rx.push::<Command>(byte) else {
                 continue;
             };
@@ -205,7 +260,10 @@ pub fn run() -> ! {
             rx_seq.observe(seq);
             // Whatever the loop queued before this command goes out first, so the host sees
             // telemetry and acks in the order they happened.
-            tx.drain(&mut tel_rx);
+            if !matches!(cmd, Command::Feed(_)) {
+                tx.drain(&mut tel_rx);
+                tx.flush_block();
+            }
             let code = match cmd {
                 Command::Ping { .. } => ack::OK,
                 Command::SetParam { id, value } => set_param(&mut scales, &mut staged, id, value),
@@ -234,7 +292,8 @@ pub fn run() -> ! {
                 } => {
                     status_every = every;
                     next_status = COUNTERS.samples.load(Ordering::Relaxed);
-                    with_loop(|l| l.per_sample = per_sample);
+                    tx.blocks = per_sample == PerSample::Blocks;
+                    with_loop(|l| l.per_sample = per_sample != PerSample::Off);
                     ack::OK
                 }
                 Command::RequestStatus => {
@@ -275,13 +334,16 @@ pub fn run() -> ! {
             };
             tx.send(&Telemetry::Ack { cmd_seq: seq, code });
         }
+        if !received && tel_rx.is_empty() {
+            // Nothing to do until an interrupt: a host byte, a loop sample, a timer. Under
+            // QEMU this also leaves the emulator's I/O thread alone instead of polling the
+            // UART, which is what makes the link fast.
+            board::idle(&b);
+        }
     }
 }
 
-fn push_cmd(
-    q: &mut visco_firmware::spsc::Producer<'static, CoreCommand, COMMAND_DEPTH>,
-    c: CoreCommand,
-) -> u8 {
+fn push_cmd(q: &mut Producer<'static, CoreCommand, COMMAND_DEPTH>, c: CoreCommand) -> u8 {
     match q.push(c) {
         Ok(()) => ack::OK,
         Err(_) => ack::BUSY,

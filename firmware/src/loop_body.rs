@@ -2,8 +2,8 @@
 //! command → ADC → `step` → DAC → lateral outputs → telemetry.
 //!
 //! It never blocks, never allocates and has no panic path: a missing ADC sample is counted
-//! and the step skipped; a full telemetry queue is counted (and leaves a gap in the frame
-//! sequence numbers, so the host sees it too).
+//! and the step skipped; a full telemetry queue is counted, and the main loop turns that
+//! count into a gap in the frame sequence numbers, so the host sees the loss too.
 
 use crate::core_glue::{CoreCommand, LoopCore};
 use crate::spsc::{Consumer, Producer};
@@ -26,15 +26,6 @@ pub trait UOutput {
 pub trait XyOutput {
     /// Writes new lateral setpoints (called only when they change).
     fn write(&mut self, x_m: f32, y_m: f32);
-}
-
-/// A telemetry item queued by the loop, with its frame sequence number.
-#[derive(Clone, Copy, Debug)]
-pub struct Tagged {
-    /// Frame sequence number, taken when the item was produced.
-    pub seq: u32,
-    /// The item.
-    pub item: Item,
 }
 
 /// What the loop reports.
@@ -90,13 +81,11 @@ pub struct LoopState<A, U, X, C> {
     /// The identification core (`None` until a configuration was applied: no steps).
     pub core: Option<C>,
     /// Loop → main telemetry.
-    pub telemetry: Producer<'static, Tagged, TELEMETRY_DEPTH>,
+    pub telemetry: Producer<'static, Item, TELEMETRY_DEPTH>,
     /// Main → loop commands.
     pub commands: Consumer<'static, CoreCommand, COMMAND_DEPTH>,
     /// Shared counters.
     pub counters: &'static Counters,
-    /// The firmware's frame sequence counter (shared with the main loop).
-    pub seq: &'static AtomicU32,
     /// Emit a Step item per sample.
     pub per_sample: bool,
     /// Sample index (since the source was last set).
@@ -112,10 +101,9 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
         u_out: U,
         xy_out: X,
         core: Option<C>,
-        telemetry: Producer<'static, Tagged, TELEMETRY_DEPTH>,
+        telemetry: Producer<'static, Item, TELEMETRY_DEPTH>,
         commands: Consumer<'static, CoreCommand, COMMAND_DEPTH>,
         counters: &'static Counters,
-        seq: &'static AtomicU32,
     ) -> Self {
         Self {
             adc,
@@ -125,7 +113,6 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
             telemetry,
             commands,
             counters,
-            seq,
             per_sample: false,
             index: 0,
             // NaN bits: the first step always writes the lateral outputs.
@@ -189,9 +176,7 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
 
     #[inline(always)]
     fn emit(&mut self, item: Item) {
-        // The number is taken even when the queue is full, so the loss shows as a gap.
-        let seq = self.seq.fetch_add(1, Ordering::Relaxed);
-        if self.telemetry.push(Tagged { seq, item }).is_err() {
+        if self.telemetry.push(item).is_err() {
             bump(&self.counters.telemetry_dropped);
         }
     }
@@ -234,10 +219,9 @@ mod tests {
 
     #[test]
     fn steps_counts_and_reports_drops() {
-        static TEL: Spsc<Tagged, TELEMETRY_DEPTH> = Spsc::new();
+        static TEL: Spsc<Item, TELEMETRY_DEPTH> = Spsc::new();
         static CMD: Spsc<CoreCommand, COMMAND_DEPTH> = Spsc::new();
         static COUNTERS: Counters = Counters::new();
-        static SEQ: AtomicU32 = AtomicU32::new(0);
         let (tp, mut tc) = TEL.split().unwrap();
         let (mut cp, cc) = CMD.split().unwrap();
         let scale = Scale::new_16bit(1e-9).unwrap();
@@ -253,7 +237,6 @@ mod tests {
             tp,
             cc,
             &COUNTERS,
-            &SEQ,
         );
         st.per_sample = true;
         cp.push(CoreCommand::Start(Mode::Sve)).unwrap();
@@ -262,17 +245,10 @@ mod tests {
         }
         assert_eq!(COUNTERS.samples.load(Ordering::Relaxed), 100);
         assert_eq!(COUNTERS.starved.load(Ordering::Relaxed), 1);
-        // 100 steps + 10 records = 110 items, 64 fit: 46 dropped, and the sequence numbers
-        // taken cover all 110.
+        // 100 steps + 10 records = 110 items, 64 fit: 46 dropped and counted.
         assert_eq!(COUNTERS.telemetry_dropped.load(Ordering::Relaxed), 46);
-        assert_eq!(SEQ.load(Ordering::Relaxed), 110);
         let mut n = 0;
-        let mut last = None;
-        while let Some(t) = tc.pop() {
-            if let Some(l) = last {
-                assert!(t.seq > l);
-            }
-            last = Some(t.seq);
+        while tc.pop().is_some() {
             n += 1;
         }
         assert_eq!(n, 64);

@@ -15,7 +15,7 @@ use std::io::{self, Read, Write};
 use std::time::{Duration, Instant};
 use visco_protocol::{
     frame, Command, FrameDecoder, FrameError, RecordFrame, SeqEvent, SeqTracker, StatusFrame,
-    StepFrame, Telemetry, MAX_WIRE,
+    StepBlockFrame, StepFrame, Telemetry, MAX_WIRE,
 };
 
 /// Counts of everything that happened on one telemetry stream.
@@ -322,8 +322,11 @@ impl ReplayInput<'_> {
 /// What a replay brought back.
 #[derive(Clone, Debug)]
 pub struct ReplayOutput {
-    /// One Step frame per sample, in order (missing ones are counted in `stats`).
+    /// One Step frame per sample, in order (`PerSample::Full`; missing ones are counted in
+    /// `stats`).
     pub steps: Vec<StepFrame>,
+    /// Compact blocks covering the samples in order (`PerSample::Blocks`).
+    pub blocks: Vec<StepBlockFrame>,
     /// Records (finished taps / pixels).
     pub records: Vec<RecordFrame>,
     /// Firmware counters after the replay.
@@ -342,7 +345,7 @@ pub mod qemu {
     use std::os::unix::net::{UnixListener, UnixStream};
     use std::path::{Path, PathBuf};
     use std::process::{Child, Command as Process, ExitStatus, Stdio};
-    use visco_protocol::{ack, FeedBlock, FeedSamples, Mode, Source, MAX_FEED};
+    use visco_protocol::{ack, FeedBlock, FeedSamples, Mode, PerSample, Source, MAX_FEED};
 
     /// How to start QEMU.
     #[derive(Clone, Debug)]
@@ -392,6 +395,10 @@ pub mod qemu {
         if let Some(shift) = opts.icount_shift {
             a.push("-icount".into());
             a.push(format!("shift={shift},sleep=off"));
+        }
+        // Extra QEMU arguments for experiments, e.g. VISCO_QEMU_EXTRA="-d in_asm".
+        if let Ok(extra) = std::env::var("VISCO_QEMU_EXTRA") {
+            a.extend(extra.split_whitespace().map(str::to_string));
         }
         a.push("-chardev".into());
         a.push(format!("socket,id=link,path={}", socket.display()));
@@ -528,13 +535,23 @@ pub mod qemu {
             }
         }
 
-        /// Feeds `input` sample by sample in `mode` and collects one Step frame per sample.
-        /// Sending runs on a second thread so the firmware never waits for the host.
-        pub fn replay(&mut self, input: ReplayInput<'_>, mode: Mode) -> io::Result<ReplayOutput> {
+        /// Feeds `input` sample by sample in `mode` and collects the per-sample outputs:
+        /// one Step frame per sample (`PerSample::Full`) or compact blocks
+        /// (`PerSample::Blocks`, ~10× fewer bytes). Sending runs on a second thread so the
+        /// firmware never waits for the host.
+        pub fn replay(
+            &mut self,
+            input: ReplayInput<'_>,
+            mode: Mode,
+            per_sample: PerSample,
+        ) -> io::Result<ReplayOutput> {
             let n = input.len();
+            if per_sample == PerSample::Off {
+                return Err(err("a replay needs per-sample outputs".into()));
+            }
             self.command_ok(&Command::SetSource(Source::Feed))?;
             self.command_ok(&Command::SetTelemetry {
-                per_sample: true,
+                per_sample,
                 status_every: 0,
             })?;
             self.command_ok(&Command::Start(mode))?;
@@ -562,7 +579,8 @@ pub mod qemu {
                 first += len;
             }
             let started = Instant::now();
-            let mut steps = Vec::with_capacity(n);
+            let mut steps = Vec::with_capacity(if per_sample == PerSample::Full { n } else { 0 });
+            let mut blocks = Vec::new();
             let mut records = Vec::new();
             let mut refused = None;
             std::thread::scope(|scope| -> io::Result<()> {
@@ -573,11 +591,19 @@ pub mod qemu {
                     }
                     writer.flush()
                 });
-                // Read until the last sample's Step frame arrives (or the link fails).
+                // Read until the last sample's output arrives (or the link fails).
                 let mut result = Ok(());
-                while steps.last().map(|s: &StepFrame| s.index as usize + 1) != Some(n) && n > 0 {
+                let mut done = 0usize;
+                while done < n {
                     match self.reader.next_frame() {
-                        Ok(Some((_, Telemetry::Step(s)))) => steps.push(s),
+                        Ok(Some((_, Telemetry::Step(s)))) => {
+                            done = s.index as usize + 1;
+                            steps.push(s);
+                        }
+                        Ok(Some((_, Telemetry::StepBlock(b)))) => {
+                            done = b.first_index as usize + b.len as usize;
+                            blocks.push(b);
+                        }
                         Ok(Some((_, Telemetry::Record(r)))) => records.push(r),
                         Ok(Some((_, Telemetry::Ack { code, cmd_seq }))) => {
                             // Feed blocks are acknowledged only when refused.
@@ -603,18 +629,21 @@ pub mod qemu {
             let elapsed = started.elapsed();
             if let Some((seq, code)) = refused {
                 return Err(err(format!(
-                    "firmware refused replay frame {seq} with ack code {code} after {} samples",
-                    steps.len()
+                    "firmware refused replay frame {seq} with ack code {code} after {} Step frames \
+                     and {} blocks",
+                    steps.len(),
+                    blocks.len()
                 )));
             }
             self.command_ok(&Command::Stop)?;
             self.command_ok(&Command::SetTelemetry {
-                per_sample: false,
+                per_sample: PerSample::Off,
                 status_every: 0,
             })?;
             let status = Some(self.status()?);
             Ok(ReplayOutput {
                 steps,
+                blocks,
                 records,
                 status,
                 stats: self.reader.stats(),

@@ -11,7 +11,9 @@ use std::time::{Duration, Instant};
 use visco_firmware::core_glue::{build_core, CoreCommand, LoopCore, StagedConfig};
 use visco_firmware::drivers::ad5541;
 use visco_firmware::scale::Scale;
-use visco_protocol::{param, Command as Cmd, Mode, StepFrame, Telemetry};
+use visco_protocol::{
+    param, Command as Cmd, Mode, PerSample, StepBlockFrame, StepFrame, Telemetry,
+};
 
 /// A task error: a message for the user.
 pub type Result<T> = std::result::Result<T, String>;
@@ -646,6 +648,48 @@ pub fn first_difference(a: &[StepFrame], b: &[StepFrame]) -> Option<(usize, Stri
     None
 }
 
+/// Checks compact blocks against the host's full frames: the blocks must cover every sample
+/// in order and each must match bit for bit. Returns the first failing sample range.
+pub fn check_blocks(blocks: &[StepBlockFrame], reference: &[StepFrame]) -> Option<(usize, String)> {
+    let mut next = 0usize;
+    for b in blocks {
+        let first = b.first_index as usize;
+        let end = first + b.len as usize;
+        if first != next {
+            return Some((next, format!("samples {next}..{first} missing")));
+        }
+        match reference.get(first..end) {
+            Some(r) if b.matches(r) => {}
+            Some(_) => {
+                let codes = (0..b.len as usize).find(|&i| {
+                    b.u_codes[i] != reference[first + i].u_code.clamp(-32768, 32767) as i16
+                        || b.status[i] != reference[first + i].status
+                });
+                return Some((
+                    first,
+                    match codes {
+                        Some(i) => format!(
+                            "sample {}: firmware u_code {} status {:#x}, host u_code {} status {:#x}",
+                            first + i,
+                            b.u_codes[i],
+                            b.status[i],
+                            reference[first + i].u_code,
+                            reference[first + i].status
+                        ),
+                        None => format!(
+                            "samples {first}..{end}: same DAC codes and status, different digest \
+                             (U in metres, X/Y or estimates differ): rerun with --full"
+                        ),
+                    },
+                ));
+            }
+            None => return Some((first, format!("block {first}..{end} beyond the input"))),
+        }
+        next = end;
+    }
+    (next != reference.len()).then(|| (next, format!("samples {next}.. missing")))
+}
+
 /// One replay under QEMU.
 #[derive(Clone, Debug)]
 pub struct ReplayResult {
@@ -661,17 +705,27 @@ pub struct ReplayResult {
     pub output: ReplayOutput,
 }
 
-/// Replays `n` test samples through the QEMU image in `mode` and compares with the host.
-pub fn replay(elf: &Path, mode: Mode, n: usize) -> Result<ReplayResult> {
+/// Replays `n` test samples through the QEMU image in `mode` and compares with the host,
+/// with compact blocks (`full == false`) or every field of every sample.
+pub fn replay(elf: &Path, mode: Mode, n: usize, full: bool) -> Result<ReplayResult> {
     let codes = test_codes(n);
     let (mut link, defmt) = spawn(elf, None, &format!("replay-{mode:?}"))?;
     configure(&mut link)?;
+    let per_sample = if full {
+        PerSample::Full
+    } else {
+        PerSample::Blocks
+    };
     let out = link
-        .replay(ReplayInput::Codes(&codes), mode)
+        .replay(ReplayInput::Codes(&codes), mode, per_sample)
         .map_err(|e| format!("replay {mode:?}: {e}"))?;
     finish(link, elf, &defmt)?;
     let reference = host_reference(&codes, mode)?;
-    let diff = first_difference(&out.steps, &reference);
+    let diff = if full {
+        first_difference(&out.steps, &reference)
+    } else {
+        check_blocks(&out.blocks, &reference)
+    };
     if let Some((i, what)) = &diff {
         eprintln!("replay {mode:?}: first difference at sample {i}:\n {what}");
     }
@@ -738,7 +792,7 @@ pub fn measure(replay_samples: usize) -> Result<Report> {
     let mut replay_v = Vec::new();
     if replay_samples > 0 {
         for mode in [Mode::Dive, Mode::Sve] {
-            replay_v.push(replay(&elf, mode, replay_samples)?);
+            replay_v.push(replay(&elf, mode, replay_samples, false)?);
         }
     }
     Ok(Report {
@@ -919,7 +973,7 @@ pub fn firmware_tests() -> Result<()> {
         }
     }
     for mode in [Mode::Dive, Mode::Sve] {
-        let r = replay(&elf, mode, 20_000)?;
+        let r = replay(&elf, mode, 20_000, false)?;
         println!(
             "replay {mode:?}: {} samples, {:.0} samples/s, bit-identical {}",
             r.samples, r.samples_per_s, r.bit_identical
@@ -929,5 +983,87 @@ pub fn firmware_tests() -> Result<()> {
         }
     }
     println!("firmware tests: ok");
+    Ok(())
+}
+
+/// `cargo xtask link-throughput`: measures the two directions of the QEMU UART link
+/// separately (diagnostic for the replay speed).
+pub fn link_throughput() -> Result<()> {
+    use visco_protocol::{FeedBlock, FeedSamples, Source, MAX_FEED};
+    let e = |e: std::io::Error| e.to_string();
+    ensure_tools()?;
+    let elf = build(Board::Qemu, &[])?;
+    // Firmware → host: Step frames produced by the timer-driven loop at 250 kHz (virtual).
+    let (mut link, defmt) = spawn(&elf, None, "tx")?;
+    configure(&mut link)?;
+    link.command_ok(&Cmd::SetTelemetry {
+        per_sample: PerSample::Full,
+        status_every: 0,
+    })
+    .map_err(e)?;
+    link.command_ok(&Cmd::Start(Mode::Dive)).map_err(e)?;
+    link.command_ok(&Cmd::SetSource(visco_protocol::Source::Timer {
+        period_ticks: 100,
+    }))
+    .map_err(e)?;
+    let t = Instant::now();
+    let mut frames = 0u64;
+    while t.elapsed() < Duration::from_secs(3) {
+        if let Ok(Telemetry::Step(_)) = link.next() {
+            frames += 1;
+        }
+    }
+    let secs = t.elapsed().as_secs_f64();
+    link.command_ok(&Cmd::SetSource(visco_protocol::Source::Timer {
+        period_ticks: 0,
+    }))
+    .map_err(e)?;
+    link.command_ok(&Cmd::SetTelemetry {
+        per_sample: PerSample::Off,
+        status_every: 0,
+    })
+    .map_err(e)?;
+    let st = link.status().map_err(e)?;
+    println!(
+        "firmware → host: {:.0} Step frames/s ({:.0} bytes/s); loop ran {} samples, {} telemetry items dropped (counted)",
+        frames as f64 / secs,
+        link.reader.stats().bytes as f64 / secs,
+        st.samples,
+        st.telemetry_dropped
+    );
+    link.backlog.clear();
+    // Host → firmware: replay blocks without per-sample telemetry.
+    link.command_ok(&Cmd::SetSource(Source::Feed)).map_err(e)?;
+    let n: usize = std::env::var("VISCO_RX_SAMPLES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(20_000);
+    let before = link.status().map_err(e)?.samples;
+    let t = Instant::now();
+    let mut first = 0;
+    while first < n {
+        let len = (n - first).min(MAX_FEED);
+        link.writer
+            .send(&Cmd::Feed(FeedBlock {
+                first_index: first as u32,
+                len: len as u8,
+                samples: FeedSamples::Codes([7; MAX_FEED]),
+            }))
+            .map_err(e)?;
+        first += len;
+    }
+    loop {
+        let s = link.status().map_err(e)?;
+        if s.samples.wrapping_sub(before) as usize >= n {
+            break;
+        }
+    }
+    let secs = t.elapsed().as_secs_f64();
+    println!(
+        "host → firmware: {:.0} samples/s ({:.0} bytes/s)",
+        n as f64 / secs,
+        (n as f64 * 2.2) / secs
+    );
+    finish(link, &elf, &defmt)?;
     Ok(())
 }

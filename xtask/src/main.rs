@@ -11,7 +11,8 @@ fn usage() -> &'static str {
   panic-check                   prove no panic path is linked (panic-never handler + canary)
   calibrate [--shifts 0,3,6]    SysTick ticks vs counted instructions under -icount
   bench [--steps N] [--shift S] instructions per loop interrupt, DIVE and SVE
-  replay [--samples N]          replay N samples through QEMU, compare with the host bit for bit
+  replay [--samples N] [--full] replay N samples through QEMU, compare with the host bit for bit
+                                (compact blocks with digests, or --full: every field per sample)
   firmware-report [--json FILE] [--replay-samples N]
                                 all measurements; JSON as documented in firmware/README.md
   firmware-test                 what `cargo xtask test` runs for the firmware
@@ -89,7 +90,7 @@ fn main() -> ExitCode {
                 let elf = firmware::build(firmware::Board::Qemu, &[])?;
                 let mut ok = true;
                 for mode in [visco_protocol::Mode::Dive, visco_protocol::Mode::Sve] {
-                    let r = firmware::replay(&elf, mode, n)?;
+                    let r = firmware::replay(&elf, mode, n, rest.iter().any(|a| a == "--full"))?;
                     println!(
                         "replay {mode:?}: {} samples in {:.2} s = {:.0} samples/s, bit-identical {}, link: {}",
                         r.samples,
@@ -111,6 +112,7 @@ fn main() -> ExitCode {
                 num(rest, "--replay-samples", 100_000usize)?,
             ),
             "firmware-test" => firmware::firmware_tests(),
+            "link-throughput" => firmware::link_throughput(),
             "defmt" => {
                 let (Some(elf), Some(stream)) = (rest.first(), rest.get(1)) else {
                     return Err(usage().into());

@@ -71,6 +71,37 @@ pub enum Source {
     Feed,
 }
 
+/// How the loop's per-sample outputs are reported.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PerSample {
+    /// Not at all (real-time running: records and status only).
+    Off,
+    /// One [`Telemetry::Step`] per sample: every field (≈ 50 bytes per sample on the wire).
+    Full,
+    /// [`Telemetry::StepBlock`]s: the DAC code and status of each sample plus a CRC-32
+    /// digest of all the Step fields of the block (≈ 4.4 bytes per sample): what a long
+    /// replay uses; rerun the failing part with `Full` to see the differing values.
+    Blocks,
+}
+
+impl PerSample {
+    fn to_u8(self) -> u8 {
+        match self {
+            PerSample::Off => 0,
+            PerSample::Full => 1,
+            PerSample::Blocks => 2,
+        }
+    }
+    fn from_u8(v: u8) -> Result<Self, DecodeError> {
+        match v {
+            0 => Ok(PerSample::Off),
+            1 => Ok(PerSample::Full),
+            2 => Ok(PerSample::Blocks),
+            _ => Err(DecodeError::BadValue),
+        }
+    }
+}
+
 /// The samples of one [`Command::Feed`] block.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum FeedSamples {
@@ -119,8 +150,8 @@ pub enum Command {
     Feed(FeedBlock),
     /// Telemetry choices.
     SetTelemetry {
-        /// One [`Telemetry::Step`] per loop sample (replay); off for real-time running.
-        per_sample: bool,
+        /// Per-sample outputs (replay); off for real-time running.
+        per_sample: PerSample,
         /// A [`Telemetry::Status`] every this many samples (0: only on request).
         status_every: u32,
     },
@@ -204,6 +235,113 @@ pub struct StepFrame {
     pub status: u16,
     /// Current aggregate estimates (c, k, h) in SI, as f32.
     pub estimates: [f32; 3],
+}
+
+impl StepFrame {
+    /// The fields as they travel in a Step message (after the kind byte); also the input of
+    /// [`step_digest`].
+    pub fn encode_fields(&self, w: &mut Writer<'_>) -> Result<(), Short> {
+        w.u32(self.index)?;
+        w.f32(self.d_m)?;
+        w.i32(self.u_code)?;
+        w.u16(self.dac_word)?;
+        w.f32(self.u_m)?;
+        w.f32(self.x_m)?;
+        w.f32(self.y_m)?;
+        w.u16(self.status)?;
+        est(w, &self.estimates)
+    }
+    fn decode_fields(r: &mut Reader<'_>) -> Result<Self, Short> {
+        Ok(StepFrame {
+            index: r.u32()?,
+            d_m: r.f32()?,
+            u_code: r.i32()?,
+            dac_word: r.u16()?,
+            u_m: r.f32()?,
+            x_m: r.f32()?,
+            y_m: r.f32()?,
+            status: r.u16()?,
+            estimates: read_est(r)?,
+        })
+    }
+}
+
+/// Bytes of one Step frame's fields.
+pub const STEP_FIELDS_LEN: usize = 40;
+
+/// Incremental CRC-32 over the encoded fields of consecutive Step frames: the digest of a
+/// [`StepBlockFrame`]. Equal digests mean bit-identical samples (up to a 2⁻³² chance).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StepDigest(crate::crc::Crc32);
+
+impl StepDigest {
+    /// An empty digest.
+    pub const fn new() -> Self {
+        Self(crate::crc::Crc32::new())
+    }
+    /// Adds one sample.
+    pub fn add(&mut self, s: &StepFrame) {
+        let mut b = [0u8; STEP_FIELDS_LEN];
+        let mut w = Writer::new(&mut b);
+        if s.encode_fields(&mut w).is_ok() {
+            self.0.update(&b);
+        }
+    }
+    /// The digest.
+    pub fn finish(self) -> u32 {
+        self.0.finish()
+    }
+}
+
+/// The digest of a run of Step frames.
+pub fn step_digest<'a>(frames: impl IntoIterator<Item = &'a StepFrame>) -> u32 {
+    let mut d = StepDigest::new();
+    for f in frames {
+        d.add(f);
+    }
+    d.finish()
+}
+
+/// Up to [`MAX_FEED`] consecutive samples in compact form (see [`PerSample::Blocks`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepBlockFrame {
+    /// Index of the first sample.
+    pub first_index: u32,
+    /// Number of samples (≤ [`MAX_FEED`]).
+    pub len: u8,
+    /// DAC codes (saturated to i16; the digest has the full value).
+    pub u_codes: [i16; MAX_FEED],
+    /// Status flags.
+    pub status: [u16; MAX_FEED],
+    /// [`step_digest`] of the block's full Step frames.
+    pub digest: u32,
+}
+
+impl Default for StepBlockFrame {
+    fn default() -> Self {
+        Self {
+            first_index: 0,
+            len: 0,
+            u_codes: [0; MAX_FEED],
+            status: [0; MAX_FEED],
+            digest: 0,
+        }
+    }
+}
+
+impl StepBlockFrame {
+    /// True when `frames` (the full samples `first_index ..`, e.g. computed on the host)
+    /// are bit-identical to what this block summarises.
+    pub fn matches(&self, frames: &[StepFrame]) -> bool {
+        let n = self.len as usize;
+        frames.len() == n
+            && frames.iter().enumerate().all(|(i, f)| {
+                f.index == self.first_index.wrapping_add(i as u32)
+                    && self.u_codes.get(i) == Some(&(f.u_code.clamp(-32768, 32767) as i16))
+                    && self.status.get(i) == Some(&f.status)
+            })
+            && step_digest(frames) == self.digest
+    }
 }
 
 /// One finished DIVE tap or SVE pixel.
@@ -293,6 +431,8 @@ pub enum Telemetry {
     },
     /// One loop sample.
     Step(StepFrame),
+    /// Consecutive loop samples, compact.
+    StepBlock(StepBlockFrame),
     /// One finished tap or pixel.
     Record(RecordFrame),
     /// Counters.
@@ -325,6 +465,7 @@ mod kind {
     pub const STATUS: u8 = 0x85;
     pub const BENCH_RESULT: u8 = 0x86;
     pub const CALIBRATION: u8 = 0x87;
+    pub const STEP_BLOCK: u8 = 0x88;
 }
 
 fn est(w: &mut Writer<'_>, e: &[f32; 3]) -> Result<(), Short> {
@@ -405,7 +546,7 @@ impl Command {
                 status_every,
             } => {
                 w.u8(kind::SET_TELEMETRY)?;
-                w.u8(per_sample as u8)?;
+                w.u8(per_sample.to_u8())?;
                 w.u32(status_every)
             }
             Command::RequestStatus => w.u8(kind::REQUEST_STATUS),
@@ -478,11 +619,7 @@ impl Command {
                 })
             }
             kind::SET_TELEMETRY => {
-                let per_sample = match r.u8()? {
-                    0 => false,
-                    1 => true,
-                    _ => return Err(DecodeError::BadValue),
-                };
+                let per_sample = PerSample::from_u8(r.u8()?)?;
                 Command::SetTelemetry {
                     per_sample,
                     status_every: r.u32()?,
@@ -525,15 +662,18 @@ impl Telemetry {
             }
             Telemetry::Step(s) => {
                 w.u8(kind::STEP)?;
-                w.u32(s.index)?;
-                w.f32(s.d_m)?;
-                w.i32(s.u_code)?;
-                w.u16(s.dac_word)?;
-                w.f32(s.u_m)?;
-                w.f32(s.x_m)?;
-                w.f32(s.y_m)?;
-                w.u16(s.status)?;
-                est(w, &s.estimates)
+                s.encode_fields(w)
+            }
+            Telemetry::StepBlock(b) => {
+                w.u8(kind::STEP_BLOCK)?;
+                w.u32(b.first_index)?;
+                let n = (b.len as usize).min(MAX_FEED);
+                w.u8(n as u8)?;
+                for (&c, &st) in b.u_codes.iter().zip(&b.status).take(n) {
+                    w.bytes(&c.to_le_bytes())?;
+                    w.u16(st)?;
+                }
+                w.u32(b.digest)
             }
             Telemetry::Record(rf) => {
                 w.u8(kind::RECORD)?;
@@ -585,17 +725,28 @@ impl Telemetry {
                 cmd_seq: r.u32()?,
                 code: r.u8()?,
             },
-            kind::STEP => Telemetry::Step(StepFrame {
-                index: r.u32()?,
-                d_m: r.f32()?,
-                u_code: r.i32()?,
-                dac_word: r.u16()?,
-                u_m: r.f32()?,
-                x_m: r.f32()?,
-                y_m: r.f32()?,
-                status: r.u16()?,
-                estimates: read_est(&mut r)?,
-            }),
+            kind::STEP => Telemetry::Step(StepFrame::decode_fields(&mut r)?),
+            kind::STEP_BLOCK => {
+                let mut b = StepBlockFrame {
+                    first_index: r.u32()?,
+                    len: r.u8()?,
+                    ..Default::default()
+                };
+                if b.len as usize > MAX_FEED {
+                    return Err(DecodeError::BadValue);
+                }
+                for (c, st) in b
+                    .u_codes
+                    .iter_mut()
+                    .zip(b.status.iter_mut())
+                    .take(b.len as usize)
+                {
+                    *c = r.i16()?;
+                    *st = r.u16()?;
+                }
+                b.digest = r.u32()?;
+                Telemetry::StepBlock(b)
+            }
             kind::RECORD => Telemetry::Record(RecordFrame {
                 index: r.u32()?,
                 mode: r.u8()?,

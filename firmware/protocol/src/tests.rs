@@ -45,8 +45,12 @@ fn all_commands() -> Vec<Command> {
             }),
         }),
         Command::SetTelemetry {
-            per_sample: true,
+            per_sample: PerSample::Full,
             status_every: 1000,
+        },
+        Command::SetTelemetry {
+            per_sample: PerSample::Blocks,
+            status_every: 0,
         },
         Command::RequestStatus,
         Command::Bench {
@@ -80,6 +84,19 @@ fn all_telemetry() -> Vec<Telemetry> {
             y_m: -1e-6,
             status: 0xA5A5,
             estimates: [1.0, 2.0, f32::INFINITY],
+        }),
+        Telemetry::StepBlock({
+            let mut b = StepBlockFrame {
+                first_index: 480,
+                len: MAX_FEED as u8,
+                digest: 0x1234_5678,
+                ..Default::default()
+            };
+            for i in 0..MAX_FEED {
+                b.u_codes[i] = (i as i16) * -600;
+                b.status[i] = i as u16;
+            }
+            b
         }),
         Telemetry::Record(RecordFrame {
             index: 77,
@@ -286,4 +303,40 @@ proptest! {
         let (_, back): (u32, Command) = frame::decode_frame(&buf[..n - 1]).unwrap();
         prop_assert_eq!(back, cmd);
     }
+}
+
+#[test]
+fn step_fields_length_and_block_matching() {
+    let frames: Vec<StepFrame> = (0..10u32)
+        .map(|i| StepFrame {
+            index: 100 + i,
+            u_code: i as i32 * 3 - 10,
+            status: 2,
+            estimates: [i as f32, 0.5, -0.0],
+            ..Default::default()
+        })
+        .collect();
+    let mut buf = [0u8; 64];
+    let mut w = crate::wire::Writer::new(&mut buf);
+    frames[0].encode_fields(&mut w).unwrap();
+    assert_eq!(w.len(), STEP_FIELDS_LEN);
+    let mut b = StepBlockFrame {
+        first_index: 100,
+        len: 10,
+        digest: step_digest(&frames),
+        ..Default::default()
+    };
+    for (i, f) in frames.iter().enumerate() {
+        b.u_codes[i] = f.u_code as i16;
+        b.status[i] = f.status;
+    }
+    assert!(b.matches(&frames));
+    // One bit anywhere in any field breaks the match.
+    let mut other = frames.clone();
+    other[7].estimates[2] = 0.0; // -0.0 → +0.0
+    assert!(!b.matches(&other));
+    let mut other = frames.clone();
+    other[3].y_m = f32::from_bits(other[3].y_m.to_bits() ^ 1);
+    assert!(!b.matches(&other));
+    assert!(!b.matches(&frames[..9]));
 }

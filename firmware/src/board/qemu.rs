@@ -25,9 +25,7 @@ use embedded_hal_bus::spi::ExclusiveDevice;
 use visco_firmware::core_glue::{ActiveCore, CoreCommand, LoopCore, Mode};
 use visco_firmware::drivers::ad4000::{self, Ad4000, Ad4000Config};
 use visco_firmware::drivers::ad5541::Ad5541;
-use visco_firmware::loop_body::{
-    self, Counters, LoopState, Tagged, COMMAND_DEPTH, TELEMETRY_DEPTH,
-};
+use visco_firmware::loop_body::{self, Counters, Item, LoopState, COMMAND_DEPTH, TELEMETRY_DEPTH};
 use visco_firmware::scale::Scale;
 use visco_firmware::spsc::{Consumer, Producer, Spsc};
 use visco_protocol::{
@@ -51,8 +49,13 @@ const UART_DATA: usize = 0x00;
 const UART_STATE: usize = 0x04;
 const UART_CTRL: usize = 0x08;
 const UART_BAUDDIV: usize = 0x10;
+const UART_INTCLEAR: usize = 0x0C;
 const UART_STATE_TXFULL: u32 = 1 << 0;
 const UART_STATE_RXFULL: u32 = 1 << 1;
+const UART_CTRL_TX_EN: u32 = 1 << 0;
+const UART_CTRL_RX_EN: u32 = 1 << 1;
+const UART_CTRL_RX_INT_EN: u32 = 1 << 3;
+const UART_INT_RX: u32 = 1 << 1;
 /// SysTick current value register.
 const SYST_CVR: usize = 0xE000_E018;
 
@@ -80,7 +83,6 @@ pub union Vector {
 }
 
 unsafe extern "C" {
-    fn UART0_RX();
     fn UART0_TX();
     fn TIMER1();
 }
@@ -96,6 +98,23 @@ pub static __INTERRUPTS: [Vector; 32] = {
     v[9] = Vector { handler: TIMER1 };
     v
 };
+
+/// UART0 receive interrupt: only wakes the main loop from `wfi` (it reads the byte).
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn UART0_RX() {
+    // SAFETY: UART0 interrupt-clear register.
+    unsafe { write_volatile(reg(UART0, UART_INTCLEAR), UART_INT_RX) };
+}
+
+/// The UART's IRQ number.
+#[derive(Clone, Copy)]
+struct UartIrq;
+// SAFETY: 0 is UART0 RX on mps2-an500.
+unsafe impl cortex_m::interrupt::InterruptNumber for UartIrq {
+    fn number(self) -> u16 {
+        0
+    }
+}
 
 /// The loop interrupt: acknowledge the timer, then one sample.
 #[unsafe(no_mangle)]
@@ -281,7 +300,10 @@ impl Uart {
         // rate is irrelevant under QEMU (no pacing).
         unsafe {
             write_volatile(reg(UART0, UART_BAUDDIV), 16);
-            write_volatile(reg(UART0, UART_CTRL), 0b11); // TX and RX enable
+            write_volatile(
+                reg(UART0, UART_CTRL),
+                UART_CTRL_TX_EN | UART_CTRL_RX_EN | UART_CTRL_RX_INT_EN,
+            );
         }
         Uart
     }
@@ -339,6 +361,13 @@ pub fn init() -> Board {
         fatal(7)
     };
     let link = Uart::init();
+    // The loop interrupt preempts everything; the UART interrupt only wakes the main loop.
+    // SAFETY: priorities are set before either interrupt is unmasked.
+    unsafe {
+        cp.NVIC.set_priority(LoopIrq, 0x00);
+        cp.NVIC.set_priority(UartIrq, 0x80);
+        NVIC::unmask(UartIrq);
+    }
     Board {
         link: Some(link),
         feed_tx,
@@ -361,10 +390,9 @@ pub fn make_loop(
     adc_scale: Scale,
     lateral: Scale,
     core: Option<ActiveCore>,
-    tel: Producer<'static, Tagged, TELEMETRY_DEPTH>,
+    tel: Producer<'static, Item, TELEMETRY_DEPTH>,
     cmds: Consumer<'static, CoreCommand, COMMAND_DEPTH>,
     counters: &'static Counters,
-    seq: &'static AtomicU32,
 ) -> Loop {
     let Some(feed) = b.feed_rx.take() else {
         fatal(8)
@@ -392,7 +420,6 @@ pub fn make_loop(
         tel,
         cmds,
         counters,
-        seq,
     )
 }
 
@@ -452,6 +479,23 @@ pub fn poll(b: &mut Board, telemetry_free: usize) {
     if b.feeding && telemetry_free >= 2 && b.feed_tx.free() < FEED_DEPTH {
         NVIC::pend(LoopIrq);
     }
+}
+
+/// True while replay samples wait for the loop.
+pub fn samples_pending(b: &Board) -> bool {
+    b.feeding && b.feed_tx.free() < FEED_DEPTH
+}
+
+/// Sleeps until an interrupt, unless work is already waiting (checked with interrupts off,
+/// so a wake-up between the check and `wfi` is not lost: a pending interrupt ends `wfi`).
+pub fn idle(b: &Board) {
+    cortex_m::interrupt::free(|_| {
+        // SAFETY: UART0 state register.
+        let rx = unsafe { read_volatile(reg(UART0, UART_STATE)) } & UART_STATE_RXFULL != 0;
+        if !rx && !samples_pending(b) {
+            cortex_m::asm::wfi();
+        }
+    });
 }
 
 /// Host bytes are taken only while a whole replay block still fits the replay queue, so a
