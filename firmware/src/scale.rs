@@ -46,7 +46,8 @@ impl Scale {
         } else {
             (c - 0.5) as i32
         };
-        r.clamp(self.min_code, self.max_code)
+        // max/min, not `clamp`: `clamp` asserts min ≤ max, a panic path in the loop.
+        r.max(self.min_code).min(self.max_code)
     }
 }
 

@@ -18,7 +18,6 @@ use core::convert::Infallible;
 use core::ptr::{read_volatile, write_volatile};
 use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m::peripheral::{syst::SystClkSource, NVIC};
-use defmt_semihosting as _;
 use embedded_hal::digital::{ErrorType as PinErrorType, OutputPin};
 use embedded_hal::spi::{ErrorType as SpiErrorType, SpiBus};
 use embedded_hal_bus::spi::ExclusiveDevice;
@@ -31,6 +30,9 @@ use visco_firmware::spsc::{Consumer, Producer, Spsc};
 use visco_protocol::{
     ack, board, BenchFrame, CalibrationFrame, FeedBlock, FeedSamples, Source, MAX_FEED,
 };
+
+#[path = "semihosting_log.rs"]
+mod semihosting_log;
 
 pub const NAME: &str = "qemu-mps2-an500";
 pub const BOARD_ID: u8 = board::QEMU_MPS2_AN500;
