@@ -12,6 +12,7 @@ pub mod core_glue;
 pub mod drivers;
 pub mod loop_body;
 pub mod scale;
+pub mod spi_device;
 pub mod spsc;
 
 #[cfg(test)]

@@ -18,14 +18,15 @@ use core::convert::Infallible;
 use core::ptr::{read_volatile, write_volatile};
 use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m::peripheral::{syst::SystClkSource, NVIC};
+use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::{ErrorType as PinErrorType, OutputPin};
 use embedded_hal::spi::{ErrorType as SpiErrorType, SpiBus};
-use embedded_hal_bus::spi::ExclusiveDevice;
 use visco_firmware::core_glue::{ActiveCore, CoreCommand, LoopCore, Mode};
 use visco_firmware::drivers::ad4000::{self, Ad4000, Ad4000Config};
 use visco_firmware::drivers::ad5541::Ad5541;
 use visco_firmware::loop_body::{self, Counters, Item, LoopState, COMMAND_DEPTH, TELEMETRY_DEPTH};
 use visco_firmware::scale::Scale;
+use visco_firmware::spi_device::CsDevice;
 use visco_firmware::spsc::{Consumer, Producer, Spsc};
 use visco_protocol::{
     ack, board, BenchFrame, CalibrationFrame, FeedBlock, FeedSamples, Source, MAX_FEED,
@@ -211,8 +212,15 @@ impl OutputPin for VirtualPin {
     }
 }
 
-type AdcDev = ExclusiveDevice<VirtualAdcBus, VirtualPin, embedded_hal_bus::spi::NoDelay>;
-type DacDev = ExclusiveDevice<VirtualDacBus, VirtualPin, embedded_hal_bus::spi::NoDelay>;
+/// Delays are meaningless for the virtual converters.
+pub struct NoWait;
+impl DelayNs for NoWait {
+    #[inline(always)]
+    fn delay_ns(&mut self, _: u32) {}
+}
+
+type AdcDev = CsDevice<VirtualAdcBus, VirtualPin, NoWait>;
+type DacDev = CsDevice<VirtualDacBus, VirtualPin, NoWait>;
 
 /// One replay sample.
 #[derive(Clone, Copy, Debug)]
@@ -379,8 +387,8 @@ pub fn init() -> Board {
     }
 }
 
-fn device<B: SpiBus<u8>>(bus: B) -> ExclusiveDevice<B, VirtualPin, embedded_hal_bus::spi::NoDelay> {
-    match ExclusiveDevice::new_no_delay(bus, VirtualPin) {
+fn device<B: SpiBus<u8>>(bus: B) -> CsDevice<B, VirtualPin, NoWait> {
+    match CsDevice::new(bus, VirtualPin, NoWait) {
         Ok(d) => d,
         Err(e) => match e {},
     }
