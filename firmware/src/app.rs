@@ -32,6 +32,9 @@ impl<T> IsrCell<T> {
     }
     /// # Safety
     /// Only from the loop interrupt, or with the loop interrupt masked.
+    // A `&mut` from `&self` is the point: exclusivity comes from the interrupt masking
+    // contract above, which the type system cannot see.
+    #[allow(clippy::mut_from_ref)]
     #[inline(always)]
     pub unsafe fn get(&self) -> Option<&mut T> {
         // SAFETY: exclusive access per the caller's contract.

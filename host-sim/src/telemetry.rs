@@ -74,6 +74,8 @@ impl fmt::Display for LinkStats {
 }
 
 /// One thing that happened on the stream.
+// A frame is moved once from the decoder to the caller; boxing it would allocate per frame.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Event {
     /// A frame, intact.
@@ -359,6 +361,11 @@ pub mod qemu {
         pub icount_shift: Option<u32>,
         /// Time allowed for QEMU to connect and for any single answer.
         pub timeout: Duration,
+        /// QEMU machine: `mps2-an500` (Cortex-M7, default) or `mps2-an385` (Cortex-M3; same
+        /// peripheral map, for the `thumbv7m-none-eabi` build).
+        pub machine: String,
+        /// QEMU CPU: `cortex-m7` or `cortex-m3`.
+        pub cpu: String,
     }
 
     impl QemuOptions {
@@ -371,6 +378,8 @@ pub mod qemu {
                 defmt_out,
                 icount_shift: None,
                 timeout: Duration::from_secs(60),
+                machine: "mps2-an500".into(),
+                cpu: "cortex-m7".into(),
             }
         }
     }
@@ -379,9 +388,9 @@ pub mod qemu {
     pub fn qemu_args(opts: &QemuOptions, socket: &Path) -> Vec<String> {
         let mut a: Vec<String> = [
             "-machine",
-            "mps2-an500",
+            opts.machine.as_str(),
             "-cpu",
-            "cortex-m7",
+            opts.cpu.as_str(),
             "-display",
             "none",
             "-monitor",
@@ -429,10 +438,11 @@ pub mod qemu {
     impl QemuLink {
         /// Starts QEMU and waits for the firmware's Hello.
         pub fn spawn(opts: &QemuOptions) -> io::Result<Self> {
+            static NEXT: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
             let socket = std::env::temp_dir().join(format!(
                 "visco-qemu-{}-{}.sock",
                 std::process::id(),
-                Instant::now().elapsed().as_nanos() ^ (opts as *const _ as u128)
+                NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
             ));
             let _ = std::fs::remove_file(&socket);
             let listener = UnixListener::bind(&socket)?;
@@ -481,7 +491,7 @@ pub mod qemu {
                 backlog: Vec::new(),
                 timeout: opts.timeout,
             };
-            match link.next()? {
+            match link.next_message()? {
                 Telemetry::Hello { protocol, .. }
                     if protocol == visco_protocol::PROTOCOL_VERSION => {}
                 other => {
@@ -494,7 +504,7 @@ pub mod qemu {
         }
 
         /// The next intact frame (error at end of stream or time-out).
-        pub fn next(&mut self) -> io::Result<Telemetry> {
+        pub fn next_message(&mut self) -> io::Result<Telemetry> {
             match self.reader.next_frame()? {
                 Some((_, m)) => Ok(m),
                 None => Err(err("the firmware closed the link".into())),
@@ -506,7 +516,7 @@ pub mod qemu {
         pub fn command(&mut self, cmd: &Command) -> io::Result<u8> {
             let seq = self.writer.send(cmd)?;
             loop {
-                match self.next()? {
+                match self.next_message()? {
                     Telemetry::Ack { cmd_seq, code } if cmd_seq == seq => return Ok(code),
                     other => self.backlog.push(other),
                 }

@@ -23,6 +23,30 @@ pub const TARGET: &str = "thumbv7em-none-eabihf";
 /// The Cortex-M3 target (issue 8's fixed-point build).
 pub const TARGET_M3: &str = "thumbv7m-none-eabi";
 
+/// An emulated machine and the target its image is built for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Machine {
+    /// QEMU machine.
+    pub machine: &'static str,
+    /// QEMU CPU.
+    pub cpu: &'static str,
+    /// Rust target.
+    pub target: &'static str,
+}
+
+/// Cortex-M7 with FPU (the product's core): QEMU mps2-an500.
+pub const M7: Machine = Machine {
+    machine: "mps2-an500",
+    cpu: "cortex-m7",
+    target: TARGET,
+};
+/// Cortex-M3 without FPU (issue 8): QEMU mps2-an385, same peripheral map as the AN500.
+pub const M3: Machine = Machine {
+    machine: "mps2-an385",
+    cpu: "cortex-m3",
+    target: TARGET_M3,
+};
+
 /// The two boards.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Board {
@@ -142,6 +166,11 @@ pub fn ensure_tools() -> Result<()> {
 
 /// Builds the firmware for `board` in release, with extra features; returns the ELF path.
 pub fn build(board: Board, extra_features: &[&str]) -> Result<PathBuf> {
+    build_for(TARGET, board, extra_features)
+}
+
+/// [`build`] for another target (the QEMU board also builds for `thumbv7m-none-eabi`).
+pub fn build_for(target: &str, board: Board, extra_features: &[&str]) -> Result<PathBuf> {
     let mut cmd = Command::new(cargo());
     cmd.current_dir(root())
         .args([
@@ -150,7 +179,7 @@ pub fn build(board: Board, extra_features: &[&str]) -> Result<PathBuf> {
             "-p",
             "visco-firmware",
             "--target",
-            TARGET,
+            target,
         ])
         .args(board.features());
     for f in extra_features {
@@ -159,7 +188,7 @@ pub fn build(board: Board, extra_features: &[&str]) -> Result<PathBuf> {
     run(&mut cmd)?;
     let elf = root()
         .join("target")
-        .join(TARGET)
+        .join(target)
         .join("release")
         .join("visco-firmware");
     // Each board/feature set overwrites the same output name: keep a copy per variant so
@@ -307,7 +336,18 @@ pub fn host_config() -> (StagedConfig, Scale, Scale) {
 }
 
 fn spawn(elf: &Path, icount_shift: Option<u32>, tag: &str) -> Result<(QemuLink, PathBuf)> {
+    spawn_on(M7, elf, icount_shift, tag)
+}
+
+fn spawn_on(
+    m: Machine,
+    elf: &Path,
+    icount_shift: Option<u32>,
+    tag: &str,
+) -> Result<(QemuLink, PathBuf)> {
     let mut opts = QemuOptions::new(elf);
+    opts.machine = m.machine.into();
+    opts.cpu = m.cpu.into();
     opts.defmt_out = elf.with_extension(format!("{tag}.defmt"));
     opts.icount_shift = icount_shift;
     opts.timeout = Duration::from_secs(120);
@@ -476,11 +516,16 @@ pub struct Calibration {
 /// `cargo xtask calibrate`: runs the counted `subs`/`bne` loop at several lengths and icount
 /// shifts and checks ticks × 40 / 2^shift = instructions.
 pub fn calibrate(elf: &Path, shifts: &[u32]) -> Result<Calibration> {
+    calibrate_on(M7, elf, shifts)
+}
+
+/// [`calibrate`] on a given machine.
+pub fn calibrate_on(m: Machine, elf: &Path, shifts: &[u32]) -> Result<Calibration> {
     let e = |e: std::io::Error| e.to_string();
     let mut points = Vec::new();
     let mut slopes = Vec::new();
     for &shift in shifts {
-        let (mut link, defmt) = spawn(elf, Some(shift), &format!("cal{shift}"))?;
+        let (mut link, defmt) = spawn_on(m, elf, Some(shift), &format!("cal{shift}"))?;
         // Keep the window below 2^24 ticks (SysTick is 24 bits).
         let max_insns = (expected_insns_per_tick(shift) * 15e6) as u64;
         let big = (max_insns / 2).min(2_000_000) as u32;
@@ -536,8 +581,13 @@ pub struct BenchResult {
 /// Measures instructions per loop interrupt in `mode` with `steps` timer-driven samples
 /// at `-icount shift=shift`.
 pub fn bench(elf: &Path, mode: Mode, steps: u32, shift: u32) -> Result<BenchResult> {
+    bench_on(M7, elf, mode, steps, shift)
+}
+
+/// [`bench`] on a given machine (the image must be built for its target).
+pub fn bench_on(m: Machine, elf: &Path, mode: Mode, steps: u32, shift: u32) -> Result<BenchResult> {
     let e = |e: std::io::Error| e.to_string();
-    let (mut link, defmt) = spawn(elf, Some(shift), &format!("bench-{mode:?}"))?;
+    let (mut link, defmt) = spawn_on(m, elf, Some(shift), &format!("bench-{mode:?}"))?;
     configure(&mut link)?;
     let ipt = expected_insns_per_tick(shift);
     // A period long enough for any interrupt of < 2000 instructions.
@@ -758,6 +808,8 @@ pub struct Report {
     pub sizes: Vec<(Board, Sizes)>,
     /// Replays.
     pub replay: Vec<ReplayResult>,
+    /// Instruction counts of the `thumbv7m-none-eabi` build (Cortex-M3, soft float).
+    pub bench_m3: Vec<BenchResult>,
 }
 
 /// Steps measured for the instruction counts.
@@ -789,6 +841,19 @@ pub fn measure(replay_samples: usize) -> Result<Report> {
     for mode in [Mode::Dive, Mode::Sve] {
         bench_v.push(bench(&elf, mode, BENCH_STEPS, 0)?);
     }
+    let elf_m3 = build_for(TARGET_M3, Board::Qemu, &[])?;
+    let cal_m3 = calibrate_on(M3, &elf_m3, &[0])?;
+    for &(shift, slope, expected) in &cal_m3.slopes {
+        if (slope - expected).abs() > 1e-3 * expected {
+            return Err(format!(
+                "SysTick calibration on mps2-an385 at shift {shift}: {slope} vs {expected}"
+            ));
+        }
+    }
+    let mut bench_m3 = Vec::new();
+    for mode in [Mode::Dive, Mode::Sve] {
+        bench_m3.push(bench_on(M3, &elf_m3, mode, BENCH_STEPS, 0)?);
+    }
     let mut replay_v = Vec::new();
     if replay_samples > 0 {
         for mode in [Mode::Dive, Mode::Sve] {
@@ -800,6 +865,7 @@ pub fn measure(replay_samples: usize) -> Result<Report> {
         calibration,
         sizes: sizes_v,
         replay: replay_v,
+        bench_m3,
     })
 }
 
@@ -875,6 +941,19 @@ impl Report {
             .collect();
         let _ = writeln!(s, "  \"sizes\": {{{}}},", sizes.join(", "));
         let _ = writeln!(s, "  \"core\": \"{}\",", core_name());
+        let m3 = |m: Mode| {
+            self.bench_m3
+                .iter()
+                .find(|b| b.mode == m)
+                .map(|b| format!("{}", b.insns_per_step.round() as i64))
+                .unwrap_or_else(|| "null".into())
+        };
+        let _ = writeln!(
+            s,
+            "  \"cortex_m3\": {{\"target\": \"{TARGET_M3}\", \"machine\": \"mps2-an385\", \
+             \"number_format\": \"f32 (soft float)\", \"instructions_per_step\": {}}},",
+            per_mode(&m3)
+        );
         let _ = writeln!(
             s,
             "  \"method\": {{\"machine\": \"qemu-system-arm -machine mps2-an500 -cpu cortex-m7\", \
@@ -1009,7 +1088,7 @@ pub fn link_throughput() -> Result<()> {
     let t = Instant::now();
     let mut frames = 0u64;
     while t.elapsed() < Duration::from_secs(3) {
-        if let Ok(Telemetry::Step(_)) = link.next() {
+        if let Ok(Telemetry::Step(_)) = link.next_message() {
             frames += 1;
         }
     }
@@ -1066,4 +1145,21 @@ pub fn link_throughput() -> Result<()> {
     );
     finish(link, &elf, &defmt)?;
     Ok(())
+}
+
+/// `cargo xtask flash-stm32h743 [--chip NAME]`: builds the STM32H743 image and runs it on a
+/// connected board with probe-rs (flash, reset, defmt over RTT on the terminal).
+pub fn flash_stm32h743(chip: &str) -> Result<()> {
+    ensure_tools()?;
+    let elf = build(Board::Stm32h743, &[])?;
+    if Command::new("probe-rs").arg("--version").output().is_err() {
+        return Err(format!(
+            "probe-rs is not installed; install it (`cargo install probe-rs-tools --locked`) \
+             and rerun, or flash {} with your own tool",
+            elf.display()
+        ));
+    }
+    run(Command::new("probe-rs")
+        .args(["run", "--chip", chip])
+        .arg(&elf))
 }

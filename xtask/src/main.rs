@@ -9,13 +9,18 @@ fn usage() -> &'static str {
   firmware                      build both boards (qemu, stm32h743) in release, print sizes
   qemu-smoke [--steps N]        boot the QEMU image, run N loop samples per mode, check the log
   panic-check                   prove no panic path is linked (panic-never handler + canary)
-  calibrate [--shifts 0,3,6]    SysTick ticks vs counted instructions under -icount
-  bench [--steps N] [--shift S] instructions per loop interrupt, DIVE and SVE
+  calibrate [--shifts 0,3,6] [--m3]
+                                SysTick ticks vs counted instructions under -icount
+  bench [--steps N] [--shift S] [--m3]
+                                instructions per loop interrupt, DIVE and SVE (--m3: the
+                                thumbv7m-none-eabi build on mps2-an385, Cortex-M3, soft float)
   replay [--samples N] [--full] replay N samples through QEMU, compare with the host bit for bit
                                 (compact blocks with digests, or --full: every field per sample)
   firmware-report [--json FILE] [--replay-samples N]
                                 all measurements; JSON as documented in firmware/README.md
   firmware-test                 what `cargo xtask test` runs for the firmware
+  flash-stm32h743 [--chip C]    build the STM32H743 image and run it with probe-rs (RTT log)
+  link-throughput               diagnostic: each direction of the QEMU UART link alone
   defmt ELF STREAM              decode a defmt stream (e.g. QEMU semihosting output)"
 }
 
@@ -53,8 +58,14 @@ fn main() -> ExitCode {
                     .split(',')
                     .map(|s| s.trim().parse().map_err(|_| format!("bad shift {s:?}")))
                     .collect::<Result<_, _>>()?;
-                let elf = firmware::build(firmware::Board::Qemu, &[])?;
-                let c = firmware::calibrate(&elf, &shifts)?;
+                let m = if rest.iter().any(|a| a == "--m3") {
+                    firmware::M3
+                } else {
+                    firmware::M7
+                };
+                let elf = firmware::build_for(m.target, firmware::Board::Qemu, &[])?;
+                println!("{} ({}), {}", m.machine, m.cpu, m.target);
+                let c = firmware::calibrate_on(m, &elf, &shifts)?;
                 for p in &c.points {
                     println!(
                         "shift={} iterations={} instructions={} ticks={} instructions/tick={:.4}",
@@ -74,9 +85,15 @@ fn main() -> ExitCode {
                 firmware::ensure_tools()?;
                 let steps = num(rest, "--steps", firmware::BENCH_STEPS)?;
                 let shift = num(rest, "--shift", 0u32)?;
-                let elf = firmware::build(firmware::Board::Qemu, &[])?;
+                let m = if rest.iter().any(|a| a == "--m3") {
+                    firmware::M3
+                } else {
+                    firmware::M7
+                };
+                let elf = firmware::build_for(m.target, firmware::Board::Qemu, &[])?;
+                println!("{} ({}), {}", m.machine, m.cpu, m.target);
                 for mode in [visco_protocol::Mode::Dive, visco_protocol::Mode::Sve] {
-                    let b = firmware::bench(&elf, mode, steps, shift)?;
+                    let b = firmware::bench_on(m, &elf, mode, steps, shift)?;
                     println!(
                         "{mode:?}: {:.3} instructions per loop interrupt (±{:.3}), {} steps, {} ticks, {} idle iterations",
                         b.insns_per_step, b.resolution, b.steps, b.ticks, b.idle_iterations
@@ -113,6 +130,9 @@ fn main() -> ExitCode {
             ),
             "firmware-test" => firmware::firmware_tests(),
             "link-throughput" => firmware::link_throughput(),
+            "flash-stm32h743" => firmware::flash_stm32h743(
+                &arg_value(rest, "--chip").unwrap_or_else(|| "STM32H743ZITx".into()),
+            ),
             "defmt" => {
                 let (Some(elf), Some(stream)) = (rest.first(), rest.get(1)) else {
                     return Err(usage().into());

@@ -392,7 +392,7 @@ impl Uart {
         unsafe {
             write_volatile((USART3 + 0x0C) as *mut u32, 109);
             write_volatile(
-                (USART3 + 0x00) as *mut u32,
+                USART3 as *mut u32, // CR1
                 (1 << 29) | (1 << 3) | (1 << 2) | 1,
             );
         }
