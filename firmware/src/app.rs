@@ -11,9 +11,9 @@ use crate::board;
 use core::cell::UnsafeCell;
 use core::sync::atomic::Ordering;
 use visco_firmware::core_glue::{self, CoreCommand, LoopCore, StagedConfig};
-use visco_firmware::loop_body::{Counters, Item, COMMAND_DEPTH, TELEMETRY_DEPTH};
+use visco_firmware::loop_body::{CommandSlot, Counters, Item, TELEMETRY_DEPTH};
 use visco_firmware::scale::Scale;
-use visco_firmware::spsc::{Consumer, Producer, Spsc};
+use visco_firmware::spsc::{Consumer, Spsc};
 use visco_protocol::{
     ack, frame, param, Command, FrameDecoder, PerSample, SeqTracker, StatusFrame, StepBlockFrame,
     StepDigest, StepFrame, Telemetry, MAX_FEED, MAX_WIRE, PROTOCOL_VERSION,
@@ -50,7 +50,7 @@ impl<T> IsrCell<T> {
 
 pub static LOOP: IsrCell<board::Loop> = IsrCell::new();
 static TELEMETRY: Spsc<Item, TELEMETRY_DEPTH> = Spsc::new();
-static COMMANDS: Spsc<CoreCommand, COMMAND_DEPTH> = Spsc::new();
+static COMMANDS: CommandSlot = CommandSlot::new();
 pub static COUNTERS: Counters = Counters::new();
 
 /// The loop interrupt body: every board's loop interrupt handler calls this after
@@ -184,9 +184,7 @@ pub fn run() -> ! {
         core_glue::CORE_ID,
         PROTOCOL_VERSION
     );
-    let (Some((tel_tx, mut tel_rx)), Some((mut cmd_tx, cmd_rx))) =
-        (TELEMETRY.split(), COMMANDS.split())
-    else {
+    let Some((tel_tx, mut tel_rx)) = TELEMETRY.split() else {
         board::fatal(4)
     };
     // Defaults: 1 nm per code everywhere, until the host configures the board.
@@ -206,7 +204,7 @@ pub fn run() -> ! {
         scales.lateral,
         core,
         tel_tx,
-        cmd_rx,
+        &COMMANDS,
         &COUNTERS,
     );
     board::mask_loop();
@@ -273,12 +271,12 @@ pub fn run() -> ! {
                 Command::ApplyConfig => apply_config(&scales, &staged),
                 Command::Start(mode) => {
                     if with_loop(|l| l.core.is_some()) == Some(true) {
-                        push_cmd(&mut cmd_tx, CoreCommand::Start(mode))
+                        push_cmd(CoreCommand::Start(mode))
                     } else {
                         ack::INVALID // no configuration applied yet
                     }
                 }
-                Command::Stop => push_cmd(&mut cmd_tx, CoreCommand::Stop),
+                Command::Stop => push_cmd(CoreCommand::Stop),
                 Command::SetSource(src) => board::set_source(&mut b, src),
                 Command::Feed(block) => {
                     let code = board::feed(&mut b, &block);
@@ -346,11 +344,15 @@ pub fn run() -> ! {
     }
 }
 
-fn push_cmd(q: &mut Producer<'static, CoreCommand, COMMAND_DEPTH>, c: CoreCommand) -> u8 {
-    match q.push(c) {
-        Ok(()) => ack::OK,
-        Err(_) => ack::BUSY,
+fn push_cmd(c: CoreCommand) -> u8 {
+    // The loop takes a command at its next sample; wait that long for the slot rather than
+    // refusing a Stop right after a Start.
+    for _ in 0..1_000_000 {
+        if COMMANDS.post(c) {
+            return ack::OK;
+        }
     }
+    ack::BUSY
 }
 
 fn set_param(scales: &mut BoardScales, staged: &mut StagedConfig, id: u16, value: f64) -> u8 {

@@ -5,9 +5,9 @@
 //! and the step skipped; a full telemetry queue is counted, and the main loop turns that
 //! count into a gap in the frame sequence numbers, so the host sees the loss too.
 
-use crate::core_glue::{CoreCommand, LoopCore};
-use crate::spsc::{Consumer, Producer};
-use core::sync::atomic::{AtomicU32, Ordering};
+use crate::core_glue::{CoreCommand, LoopCore, Mode};
+use crate::spsc::Producer;
+use core::sync::atomic::{AtomicU32, AtomicU8, Ordering};
 use visco_protocol::{RecordFrame, StepFrame};
 
 /// The deflection input (ADC driver and code → metres).
@@ -67,8 +67,50 @@ fn bump(c: &AtomicU32) {
 
 /// Depth of the loop → main telemetry queue.
 pub const TELEMETRY_DEPTH: usize = 64;
-/// Depth of the main → loop command queue.
-pub const COMMAND_DEPTH: usize = 4;
+/// One core command in flight from the main loop to the loop interrupt.
+///
+/// A single byte rather than a queue because the loop checks it on every sample: one
+/// relaxed load (no barrier) when empty. Only the main loop writes a command, and only into
+/// an empty slot; only the loop empties it, so no update is lost on one core or several.
+#[derive(Debug, Default)]
+pub struct CommandSlot(AtomicU8);
+
+impl CommandSlot {
+    /// Empty.
+    pub const fn new() -> Self {
+        Self(AtomicU8::new(0))
+    }
+    /// Posts a command (main loop); false while the previous one has not been taken.
+    pub fn post(&self, c: CoreCommand) -> bool {
+        if self.0.load(Ordering::Acquire) != 0 {
+            return false;
+        }
+        self.0.store(
+            match c {
+                CoreCommand::Stop => 1,
+                CoreCommand::Start(Mode::Dive) => 2,
+                CoreCommand::Start(Mode::Sve) => 3,
+            },
+            Ordering::Release,
+        );
+        true
+    }
+    /// Takes the waiting command, if any (loop interrupt).
+    #[inline(always)]
+    pub fn take(&self) -> Option<CoreCommand> {
+        let v = self.0.load(Ordering::Relaxed);
+        if v == 0 {
+            return None;
+        }
+        self.0.store(0, Ordering::Relaxed);
+        match v {
+            1 => Some(CoreCommand::Stop),
+            2 => Some(CoreCommand::Start(Mode::Dive)),
+            3 => Some(CoreCommand::Start(Mode::Sve)),
+            _ => None,
+        }
+    }
+}
 
 /// Everything the loop interrupt owns.
 pub struct LoopState<A, U, X, C> {
@@ -83,7 +125,7 @@ pub struct LoopState<A, U, X, C> {
     /// Loop → main telemetry.
     pub telemetry: Producer<'static, Item, TELEMETRY_DEPTH>,
     /// Main → loop commands.
-    pub commands: Consumer<'static, CoreCommand, COMMAND_DEPTH>,
+    pub commands: &'static CommandSlot,
     /// Shared counters.
     pub counters: &'static Counters,
     /// Emit a Step item per sample.
@@ -102,7 +144,7 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
         xy_out: X,
         core: Option<C>,
         telemetry: Producer<'static, Item, TELEMETRY_DEPTH>,
-        commands: Consumer<'static, CoreCommand, COMMAND_DEPTH>,
+        commands: &'static CommandSlot,
         counters: &'static Counters,
     ) -> Self {
         Self {
@@ -127,7 +169,7 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
             bump(&self.counters.starved);
             return;
         };
-        if let Some(cmd) = self.commands.pop() {
+        if let Some(cmd) = self.commands.take() {
             core.command(cmd);
         }
         let Some(d) = self.adc.sample() else {
@@ -185,7 +227,7 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::core_glue::{build_core, Mode, StagedConfig};
+    use crate::core_glue::{build_core, StagedConfig};
     use crate::scale::Scale;
     use crate::spsc::Spsc;
     use std::vec::Vec;
@@ -220,10 +262,9 @@ mod tests {
     #[test]
     fn steps_counts_and_reports_drops() {
         static TEL: Spsc<Item, TELEMETRY_DEPTH> = Spsc::new();
-        static CMD: Spsc<CoreCommand, COMMAND_DEPTH> = Spsc::new();
+        static CMD: CommandSlot = CommandSlot::new();
         static COUNTERS: Counters = Counters::new();
         let (tp, mut tc) = TEL.split().unwrap();
-        let (mut cp, cc) = CMD.split().unwrap();
         let scale = Scale::new_16bit(1e-9).unwrap();
         let mut cfg = StagedConfig::new();
         assert!(cfg.stage(crate::core_glue::standin_param::RECORD_EVERY, 10.0));
@@ -235,11 +276,12 @@ mod tests {
             Xy::default(),
             Some(core),
             tp,
-            cc,
+            &CMD,
             &COUNTERS,
         );
         st.per_sample = true;
-        cp.push(CoreCommand::Start(Mode::Sve)).unwrap();
+        assert!(CMD.post(CoreCommand::Start(Mode::Sve)));
+        assert!(!CMD.post(CoreCommand::Stop)); // the first one is not taken yet
         for _ in 0..101 {
             st.on_sample();
         }

@@ -562,8 +562,8 @@ pub fn calibrate_on(m: Machine, elf: &Path, shifts: &[u32]) -> Result<Calibratio
 /// Result of one instruction-count measurement.
 #[derive(Clone, Copy, Debug)]
 pub struct BenchResult {
-    /// Mode.
-    pub mode: Mode,
+    /// Mode (`None`: core stopped, the interrupt's cost around `step`).
+    pub mode: Option<Mode>,
     /// icount shift used.
     pub shift: u32,
     /// Loop interrupts measured.
@@ -580,12 +580,18 @@ pub struct BenchResult {
 
 /// Measures instructions per loop interrupt in `mode` with `steps` timer-driven samples
 /// at `-icount shift=shift`.
-pub fn bench(elf: &Path, mode: Mode, steps: u32, shift: u32) -> Result<BenchResult> {
+pub fn bench(elf: &Path, mode: Option<Mode>, steps: u32, shift: u32) -> Result<BenchResult> {
     bench_on(M7, elf, mode, steps, shift)
 }
 
 /// [`bench`] on a given machine (the image must be built for its target).
-pub fn bench_on(m: Machine, elf: &Path, mode: Mode, steps: u32, shift: u32) -> Result<BenchResult> {
+pub fn bench_on(
+    m: Machine,
+    elf: &Path,
+    mode: Option<Mode>,
+    steps: u32,
+    shift: u32,
+) -> Result<BenchResult> {
     let e = |e: std::io::Error| e.to_string();
     let (mut link, defmt) = spawn_on(m, elf, Some(shift), &format!("bench-{mode:?}"))?;
     configure(&mut link)?;
@@ -838,7 +844,7 @@ pub fn measure(replay_samples: usize) -> Result<Report> {
         }
     }
     let mut bench_v = Vec::new();
-    for mode in [Mode::Dive, Mode::Sve] {
+    for mode in [None, Some(Mode::Dive), Some(Mode::Sve)] {
         bench_v.push(bench(&elf, mode, BENCH_STEPS, 0)?);
     }
     let elf_m3 = build_for(TARGET_M3, Board::Qemu, &[])?;
@@ -851,7 +857,7 @@ pub fn measure(replay_samples: usize) -> Result<Report> {
         }
     }
     let mut bench_m3 = Vec::new();
-    for mode in [Mode::Dive, Mode::Sve] {
+    for mode in [None, Some(Mode::Dive), Some(Mode::Sve)] {
         bench_m3.push(bench_on(M3, &elf_m3, mode, BENCH_STEPS, 0)?);
     }
     let mut replay_v = Vec::new();
@@ -879,7 +885,7 @@ impl Report {
         let ins = |m: Mode| {
             self.bench
                 .iter()
-                .find(|b| b.mode == m)
+                .find(|b| b.mode == Some(m))
                 .map(|b| format!("{}", b.insns_per_step.round() as i64))
                 .unwrap_or_else(|| "null".into())
         };
@@ -887,7 +893,7 @@ impl Report {
         let exact = |m: Mode| {
             self.bench
                 .iter()
-                .find(|b| b.mode == m)
+                .find(|b| b.mode == Some(m))
                 .map(|b| format!("{:.3}", b.insns_per_step))
                 .unwrap_or_else(|| "null".into())
         };
@@ -895,6 +901,17 @@ impl Report {
             s,
             "  \"instructions_per_step_exact\": {},",
             per_mode(&exact)
+        );
+        let overhead = |v: &[BenchResult]| {
+            v.iter()
+                .find(|b| b.mode.is_none())
+                .map(|b| format!("{:.3}", b.insns_per_step))
+                .unwrap_or_else(|| "null".into())
+        };
+        let _ = writeln!(
+            s,
+            "  \"instructions_per_step_core_stopped\": {},",
+            overhead(&self.bench)
         );
         let rep = |m: Mode| self.replay.iter().find(|r| r.mode == m);
         let _ = writeln!(
@@ -944,15 +961,17 @@ impl Report {
         let m3 = |m: Mode| {
             self.bench_m3
                 .iter()
-                .find(|b| b.mode == m)
+                .find(|b| b.mode == Some(m))
                 .map(|b| format!("{}", b.insns_per_step.round() as i64))
                 .unwrap_or_else(|| "null".into())
         };
         let _ = writeln!(
             s,
             "  \"cortex_m3\": {{\"target\": \"{TARGET_M3}\", \"machine\": \"mps2-an385\", \
-             \"number_format\": \"f32 (soft float)\", \"instructions_per_step\": {}}},",
-            per_mode(&m3)
+             \"number_format\": \"f32 (soft float)\", \"instructions_per_step\": {}, \
+             \"instructions_per_step_core_stopped\": {}}},",
+            per_mode(&m3),
+            overhead(&self.bench_m3)
         );
         let _ = writeln!(
             s,
@@ -998,7 +1017,7 @@ pub fn firmware_report(json: Option<&Path>, replay_samples: usize) -> Result<()>
     }
     for b in &r.bench {
         println!(
-            "{:?}: {:.3} instructions per loop interrupt (±{:.3}; {} steps, {} ticks, {} idle iterations, shift {}) [{} core]",
+            "{:?}: {:.3} instructions per loop interrupt (±{:.3}; {} steps, {} ticks, {} idle iterations, shift {}) [{} core; None = core stopped]",
             b.mode, b.insns_per_step, b.resolution, b.steps, b.ticks, b.idle_iterations, b.shift, core_name()
         );
     }

@@ -92,10 +92,15 @@ fn main() -> ExitCode {
                 };
                 let elf = firmware::build_for(m.target, firmware::Board::Qemu, &[])?;
                 println!("{} ({}), {}", m.machine, m.cpu, m.target);
-                for mode in [visco_protocol::Mode::Dive, visco_protocol::Mode::Sve] {
+                for mode in [
+                    None,
+                    Some(visco_protocol::Mode::Dive),
+                    Some(visco_protocol::Mode::Sve),
+                ] {
                     let b = firmware::bench_on(m, &elf, mode, steps, shift)?;
+                    let name = mode.map_or("core stopped".to_string(), |m| format!("{m:?}"));
                     println!(
-                        "{mode:?}: {:.3} instructions per loop interrupt (±{:.3}), {} steps, {} ticks, {} idle iterations",
+                        "{name}: {:.3} instructions per loop interrupt (±{:.3}), {} steps, {} ticks, {} idle iterations",
                         b.insns_per_step, b.resolution, b.steps, b.ticks, b.idle_iterations
                     );
                 }

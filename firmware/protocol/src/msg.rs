@@ -159,8 +159,9 @@ pub enum Command {
     RequestStatus,
     /// Measures the loop interrupt (QEMU board: instructions via SysTick under `-icount`).
     Bench {
-        /// Mode to run the loop in while measuring.
-        mode: Mode,
+        /// Mode to run the loop in while measuring; `None`: the core stopped (its outputs
+        /// hold), which measures what the interrupt costs around `step`.
+        mode: Option<Mode>,
         /// Number of loop interrupts to measure (≥ 10 000 for the report).
         steps: u32,
         /// Loop timer period in board ticks during the measurement.
@@ -385,7 +386,7 @@ pub struct StatusFrame {
 /// The result of [`Command::Bench`].
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct BenchFrame {
-    /// Mode measured.
+    /// Mode measured (0: core stopped, 1 DIVE, 2 SVE).
     pub mode: u8,
     /// Loop interrupts in the window.
     pub steps: u32,
@@ -556,7 +557,7 @@ impl Command {
                 period_ticks,
             } => {
                 w.u8(kind::BENCH)?;
-                w.u8(mode.to_u8())?;
+                w.u8(mode.map_or(0, Mode::to_u8))?;
                 w.u32(steps)?;
                 w.u32(period_ticks)
             }
@@ -627,7 +628,10 @@ impl Command {
             }
             kind::REQUEST_STATUS => Command::RequestStatus,
             kind::BENCH => Command::Bench {
-                mode: Mode::from_u8(r.u8()?)?,
+                mode: match r.u8()? {
+                    0 => None,
+                    m => Some(Mode::from_u8(m)?),
+                },
                 steps: r.u32()?,
                 period_ticks: r.u32()?,
             },

@@ -54,7 +54,12 @@ fn all_commands() -> Vec<Command> {
         },
         Command::RequestStatus,
         Command::Bench {
-            mode: Mode::Sve,
+            mode: None,
+            steps: 1,
+            period_ticks: 2,
+        },
+        Command::Bench {
+            mode: Some(Mode::Sve),
             steps: 10_000,
             period_ticks: 50,
         },

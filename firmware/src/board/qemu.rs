@@ -24,7 +24,7 @@ use embedded_hal::spi::{ErrorType as SpiErrorType, SpiBus};
 use visco_firmware::core_glue::{ActiveCore, CoreCommand, LoopCore, Mode};
 use visco_firmware::drivers::ad4000::{self, Ad4000, Ad4000Config};
 use visco_firmware::drivers::ad5541::Ad5541;
-use visco_firmware::loop_body::{self, Counters, Item, LoopState, COMMAND_DEPTH, TELEMETRY_DEPTH};
+use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, TELEMETRY_DEPTH};
 use visco_firmware::scale::Scale;
 use visco_firmware::spi_device::CsDevice;
 use visco_firmware::spsc::{Consumer, Producer, Spsc};
@@ -401,7 +401,7 @@ pub fn make_loop(
     lateral: Scale,
     core: Option<ActiveCore>,
     tel: Producer<'static, Item, TELEMETRY_DEPTH>,
-    cmds: Consumer<'static, CoreCommand, COMMAND_DEPTH>,
+    cmds: &'static CommandSlot,
     counters: &'static Counters,
 ) -> Loop {
     let Some(feed) = b.feed_rx.take() else {
@@ -591,7 +591,12 @@ fn timer1_now() -> u32 {
 /// Window: from the first SysTick read to the second, thread mode executes `movs` (1), the
 /// idle loop (4 instructions per iteration: `ldr`, `adds`, `cmp`, `bmi`) and the second `ldr`
 /// (1); everything else is the loop interrupts.
-pub fn bench(b: &mut Board, mode: Mode, steps: u32, period_ticks: u32) -> Option<BenchFrame> {
+pub fn bench(
+    b: &mut Board,
+    mode: Option<Mode>,
+    steps: u32,
+    period_ticks: u32,
+) -> Option<BenchFrame> {
     if steps == 0 || period_ticks < 2 {
         return None;
     }
@@ -602,7 +607,10 @@ pub fn bench(b: &mut Board, mode: Mode, steps: u32, period_ticks: u32) -> Option
         l.per_sample = false;
         match l.core.as_mut() {
             Some(c) => {
-                c.command(CoreCommand::Start(mode));
+                c.command(match mode {
+                    Some(m) => CoreCommand::Start(m),
+                    None => CoreCommand::Stop,
+                });
                 true
             }
             None => false,
@@ -653,8 +661,9 @@ pub fn bench(b: &mut Board, mode: Mode, steps: u32, period_ticks: u32) -> Option
     let wrapped = w0.wrapping_sub(w1) >= 0x00FF_0000;
     Some(BenchFrame {
         mode: match mode {
-            Mode::Dive => 1,
-            Mode::Sve => 2,
+            None => 0,
+            Some(Mode::Dive) => 1,
+            Some(Mode::Sve) => 2,
         },
         steps,
         ticks: if wrapped { 0 } else { ticks },

@@ -21,13 +21,13 @@ use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::{ErrorType as PinErrorType, OutputPin};
 use embedded_hal::spi::{ErrorType as SpiErrorType, SpiBus};
 use stm32h7::stm32h743 as pac;
-use visco_firmware::core_glue::{ActiveCore, CoreCommand, Mode};
+use visco_firmware::core_glue::{ActiveCore, Mode};
 use visco_firmware::drivers::ad4000::{Ad4000, Ad4000Config};
 use visco_firmware::drivers::ad5541::Ad5541;
-use visco_firmware::loop_body::{self, Counters, Item, LoopState, COMMAND_DEPTH, TELEMETRY_DEPTH};
+use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, TELEMETRY_DEPTH};
 use visco_firmware::scale::Scale;
 use visco_firmware::spi_device::CsDevice;
-use visco_firmware::spsc::{Consumer, Producer};
+use visco_firmware::spsc::Producer;
 use visco_protocol::{ack, board, BenchFrame, CalibrationFrame, FeedBlock, Source};
 
 #[cfg(not(feature = "panic-never"))]
@@ -486,7 +486,7 @@ pub fn make_loop(
     lateral: Scale,
     core: Option<ActiveCore>,
     tel: Producer<'static, Item, TELEMETRY_DEPTH>,
-    cmds: Consumer<'static, CoreCommand, COMMAND_DEPTH>,
+    cmds: &'static CommandSlot,
     counters: &'static Counters,
 ) -> Loop {
     for n in [5, 6, 7] {
@@ -566,7 +566,12 @@ pub fn feed(_b: &mut Board, _block: &FeedBlock) -> u8 {
     ack::UNSUPPORTED
 }
 
-pub fn bench(_b: &mut Board, _mode: Mode, _steps: u32, _period_ticks: u32) -> Option<BenchFrame> {
+pub fn bench(
+    _b: &mut Board,
+    _mode: Option<Mode>,
+    _steps: u32,
+    _period_ticks: u32,
+) -> Option<BenchFrame> {
     None
 }
 
