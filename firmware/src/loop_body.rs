@@ -67,11 +67,12 @@ fn bump(c: &AtomicU32) {
 
 /// Depth of the loop → main telemetry queue.
 pub const TELEMETRY_DEPTH: usize = 64;
-/// One core command in flight from the main loop to the loop interrupt.
+/// The core command waiting for the loop interrupt: Start or Stop, the latest one wins.
 ///
 /// A single byte rather than a queue because the loop checks it on every sample: one
-/// relaxed load (no barrier) when empty. Only the main loop writes a command, and only into
-/// an empty slot; only the loop empties it, so no update is lost on one core or several.
+/// relaxed load, no barrier, when empty. The main loop overwrites an untaken command (only
+/// the latest intent matters: Stop then Start is a Start); the loop takes it with an atomic
+/// swap, so a command posted while the loop takes the previous one is never lost.
 #[derive(Debug, Default)]
 pub struct CommandSlot(AtomicU8);
 
@@ -80,11 +81,8 @@ impl CommandSlot {
     pub const fn new() -> Self {
         Self(AtomicU8::new(0))
     }
-    /// Posts a command (main loop); false while the previous one has not been taken.
-    pub fn post(&self, c: CoreCommand) -> bool {
-        if self.0.load(Ordering::Acquire) != 0 {
-            return false;
-        }
+    /// Posts a command (main loop), replacing one not taken yet.
+    pub fn post(&self, c: CoreCommand) {
         self.0.store(
             match c {
                 CoreCommand::Stop => 1,
@@ -93,17 +91,14 @@ impl CommandSlot {
             },
             Ordering::Release,
         );
-        true
     }
     /// Takes the waiting command, if any (loop interrupt).
     #[inline(always)]
     pub fn take(&self) -> Option<CoreCommand> {
-        let v = self.0.load(Ordering::Relaxed);
-        if v == 0 {
+        if self.0.load(Ordering::Relaxed) == 0 {
             return None;
         }
-        self.0.store(0, Ordering::Relaxed);
-        match v {
+        match self.0.swap(0, Ordering::Acquire) {
             1 => Some(CoreCommand::Stop),
             2 => Some(CoreCommand::Start(Mode::Dive)),
             3 => Some(CoreCommand::Start(Mode::Sve)),
@@ -280,8 +275,8 @@ mod tests {
             &COUNTERS,
         );
         st.per_sample = true;
-        assert!(CMD.post(CoreCommand::Start(Mode::Sve)));
-        assert!(!CMD.post(CoreCommand::Stop)); // the first one is not taken yet
+        CMD.post(CoreCommand::Stop);
+        CMD.post(CoreCommand::Start(Mode::Sve)); // the latest intent wins
         for _ in 0..101 {
             st.on_sample();
         }
