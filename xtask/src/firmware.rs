@@ -1015,10 +1015,11 @@ pub fn firmware_report(json: Option<&Path>, replay_samples: usize) -> Result<()>
     for (shift, m, e) in &r.calibration.slopes {
         println!("calibration shift={shift}: {m:.6} instructions/tick (expected {e:.6})");
     }
+    let name = |m: Option<Mode>| m.map_or("core stopped".to_string(), |m| format!("{m:?}"));
     for b in &r.bench {
         println!(
-            "{:?}: {:.3} instructions per loop interrupt (±{:.3}; {} steps, {} ticks, {} idle iterations, shift {}) [{} core; None = core stopped]",
-            b.mode, b.insns_per_step, b.resolution, b.steps, b.ticks, b.idle_iterations, b.shift, core_name()
+            "{}: {:.3} instructions per loop interrupt (±{:.3}; {} steps, {} ticks, {} idle iterations, shift {}) [{} core]",
+            name(b.mode), b.insns_per_step, b.resolution, b.steps, b.ticks, b.idle_iterations, b.shift, core_name()
         );
     }
     for (b, s) in &r.sizes {

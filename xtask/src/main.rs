@@ -18,6 +18,7 @@ fn usage() -> &'static str {
                                 (compact blocks with digests, or --full: every field per sample)
   firmware-report [--json FILE] [--replay-samples N]
                                 all measurements; JSON as documented in firmware/README.md
+  test                          cargo test (workspace), then firmware-test
   firmware-test                 what `cargo xtask test` runs for the firmware
   flash-stm32h743 [--chip C]    build the STM32H743 image and run it with probe-rs (RTT log)
   link-throughput               diagnostic: each direction of the QEMU UART link alone
@@ -134,6 +135,20 @@ fn main() -> ExitCode {
                 num(rest, "--replay-samples", 100_000usize)?,
             ),
             "firmware-test" => firmware::firmware_tests(),
+            // Placeholder until the workspace's own `test` task lands: the host tests of the
+            // default members, then the firmware tests.
+            "test" => {
+                let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+                let status = std::process::Command::new(cargo)
+                    .current_dir(firmware::root())
+                    .arg("test")
+                    .status()
+                    .map_err(|e| e.to_string())?;
+                if !status.success() {
+                    return Err(format!("cargo test failed: {status}"));
+                }
+                firmware::firmware_tests()
+            }
             "link-throughput" => firmware::link_throughput(),
             "flash-stm32h743" => firmware::flash_stm32h743(
                 &arg_value(rest, "--chip").unwrap_or_else(|| "STM32H743ZITx".into()),
