@@ -429,6 +429,7 @@ pub mod qemu {
         /// Frames that arrived while waiting for something else (in order).
         pub backlog: Vec<Telemetry>,
         timeout: Duration,
+        lockstep_index: u32,
     }
 
     fn err(msg: String) -> io::Error {
@@ -490,6 +491,7 @@ pub mod qemu {
                 writer: CommandWriter::new(w),
                 backlog: Vec::new(),
                 timeout: opts.timeout,
+                lockstep_index: 0,
             };
             match link.next_message()? {
                 Telemetry::Hello { protocol, .. }
@@ -659,6 +661,45 @@ pub mod qemu {
                 stats: self.reader.stats(),
                 elapsed,
             })
+        }
+
+        /// Starts a closed-loop (processor-in-the-loop) run: afterwards each
+        /// [`Self::lockstep`] call feeds one deflection and returns that sample's outputs, so
+        /// a host plant can compute the next deflection from the firmware's U.
+        pub fn start_lockstep(&mut self, mode: Mode) -> io::Result<()> {
+            self.command_ok(&Command::SetSource(Source::Feed))?;
+            self.command_ok(&Command::SetTelemetry {
+                per_sample: PerSample::Full,
+                status_every: 0,
+            })?;
+            self.command_ok(&Command::Start(mode))?;
+            self.lockstep_index = 0;
+            Ok(())
+        }
+
+        /// One closed-loop sample (see [`Self::start_lockstep`]).
+        pub fn lockstep(&mut self, d_m: f32) -> io::Result<StepFrame> {
+            let mut m = [0f32; MAX_FEED];
+            m[0] = d_m;
+            self.writer.send(&Command::Feed(FeedBlock {
+                first_index: self.lockstep_index,
+                len: 1,
+                samples: FeedSamples::Metres(m),
+            }))?;
+            loop {
+                match self.next_message()? {
+                    Telemetry::Step(s) if s.index == self.lockstep_index => {
+                        self.lockstep_index = self.lockstep_index.wrapping_add(1);
+                        return Ok(s);
+                    }
+                    Telemetry::Ack { code, cmd_seq } => {
+                        return Err(err(format!(
+                            "firmware refused lockstep frame {cmd_seq}: ack code {code}"
+                        )))
+                    }
+                    other => self.backlog.push(other),
+                }
+            }
         }
 
         /// Ends the emulation (firmware semihosting exit) and waits for QEMU.

@@ -1051,7 +1051,7 @@ pub fn firmware_report(json: Option<&Path>, replay_samples: usize) -> Result<()>
 
 /// Everything firmware-side that `cargo xtask test` runs: the firmware library's host tests,
 /// both boards built, the zero-panic link check, the QEMU smoke test, the SysTick
-/// calibration, and a bit-identical replay in both modes.
+/// calibration, a bit-identical replay in both modes, and a short closed-loop lockstep run.
 pub fn firmware_tests() -> Result<()> {
     ensure_tools()?;
     run(Command::new(cargo()).current_dir(root()).args([
@@ -1081,6 +1081,7 @@ pub fn firmware_tests() -> Result<()> {
             return Err(format!("replay {mode:?} is not bit-identical"));
         }
     }
+    lockstep(2_000)?;
     println!("firmware tests: ok");
     Ok(())
 }
@@ -1182,4 +1183,58 @@ pub fn flash_stm32h743(chip: &str) -> Result<()> {
     run(Command::new("probe-rs")
         .args(["run", "--chip", chip])
         .arg(&elf))
+}
+
+/// `cargo xtask lockstep [--samples N]`: closed-loop transport check. A toy plant on the host
+/// (D follows the firmware's U through a first-order lag) runs in lockstep with the firmware
+/// under QEMU, one UART round trip per sample; the host reference runs the same plant with
+/// the host build of the loop, and the two trajectories must be bit-identical.
+pub fn lockstep(n: usize) -> Result<()> {
+    let e = |e: std::io::Error| e.to_string();
+    ensure_tools()?;
+    let elf = build(Board::Qemu, &[])?;
+    let (mut link, defmt) = spawn(&elf, None, "lockstep")?;
+    configure(&mut link)?;
+    let plant = |d: f32, u: f32| d + 0.05 * (0.5 * u - d);
+    link.start_lockstep(Mode::Sve).map_err(e)?;
+    let t = Instant::now();
+    let mut d = 1e-9f32;
+    let mut fw = Vec::with_capacity(n);
+    for _ in 0..n {
+        let s = link.lockstep(d).map_err(e)?;
+        d = plant(d, s.u_m);
+        fw.push(s);
+    }
+    let secs = t.elapsed().as_secs_f64();
+    finish(link, &elf, &defmt)?;
+    let (cfg, _adc, dac) = host_config();
+    let mut core = build_core(&cfg, &dac).map_err(|e| format!("{e:?}"))?;
+    core.command(CoreCommand::Start(Mode::Sve));
+    let mut d = 1e-9f32;
+    let mut host = Vec::with_capacity(n);
+    for i in 0..n {
+        let o = core.step(d);
+        host.push(StepFrame {
+            index: i as u32,
+            d_m: d,
+            u_code: o.u_code,
+            dac_word: ad5541::word_for(o.u_code),
+            u_m: o.u_m,
+            x_m: o.x_m,
+            y_m: o.y_m,
+            status: o.status,
+            estimates: core.estimates(),
+        });
+        d = plant(d, o.u_m);
+    }
+    match first_difference(&fw, &host) {
+        None => {
+            println!(
+                "lockstep: {n} closed-loop samples in {secs:.2} s = {:.0} samples/s, bit-identical",
+                n as f64 / secs
+            );
+            Ok(())
+        }
+        Some((i, what)) => Err(format!("lockstep differs at sample {i}:\n{what}")),
+    }
 }

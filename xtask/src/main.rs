@@ -22,6 +22,8 @@ fn usage() -> &'static str {
   firmware-test                 what `cargo xtask test` runs for the firmware
   flash-stm32h743 [--chip C]    build the STM32H743 image and run it with probe-rs (RTT log)
   link-throughput               diagnostic: each direction of the QEMU UART link alone
+  lockstep [--samples N]        closed loop: host plant ↔ firmware under QEMU, one round trip
+                                per sample, compared with the host-only run
   defmt ELF STREAM              decode a defmt stream (e.g. QEMU semihosting output)"
 }
 
@@ -150,6 +152,7 @@ fn main() -> ExitCode {
                 firmware::firmware_tests()
             }
             "link-throughput" => firmware::link_throughput(),
+            "lockstep" => firmware::lockstep(num(rest, "--samples", 5_000usize)?),
             "flash-stm32h743" => firmware::flash_stm32h743(
                 &arg_value(rest, "--chip").unwrap_or_else(|| "STM32H743ZITx".into()),
             ),
