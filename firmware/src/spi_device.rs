@@ -42,6 +42,12 @@ impl<B: SpiBus<u8>, P: OutputPin, D: DelayNs> CsDevice<B, P, D> {
         cs.set_high()?;
         Ok(Self { bus, cs, delay })
     }
+
+    /// The bus (outside a transaction).
+    #[inline(always)]
+    pub fn bus_mut(&mut self) -> &mut B {
+        &mut self.bus
+    }
 }
 
 impl<B: SpiBus<u8>, P: OutputPin, D> ErrorType for CsDevice<B, P, D> {

@@ -16,13 +16,13 @@
 use crate::app::{self, Link};
 use core::convert::Infallible;
 use core::ptr::{read_volatile, write_volatile};
-use core::sync::atomic::{AtomicU32, Ordering};
+use core::sync::atomic::Ordering;
 use cortex_m::peripheral::{syst::SystClkSource, NVIC};
 use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::{ErrorType as PinErrorType, OutputPin};
 use embedded_hal::spi::{ErrorType as SpiErrorType, SpiBus};
 use visco_firmware::core_glue::{ActiveCore, CoreCommand, LoopCore, Mode};
-use visco_firmware::drivers::ad4000::{self, Ad4000, Ad4000Config};
+use visco_firmware::drivers::ad4000::{self, part, Ad4000, CFG_TURBO};
 use visco_firmware::drivers::ad5541::Ad5541;
 use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, TELEMETRY_DEPTH};
 use visco_firmware::scale::Scale;
@@ -130,18 +130,18 @@ pub unsafe extern "C" fn TIMER0() {
 
 // ---- Virtual SPI converters. ----
 
-/// The virtual ADC's conversion result, left-aligned in 32 bits.
-static CONVERSION: AtomicU32 = AtomicU32::new(0);
-
-/// An SPI bus whose MISO shifts out [`CONVERSION`], MSB first, once per transfer call.
-pub struct VirtualAdcBus;
+/// An SPI bus whose MISO shifts out the virtual ADC's conversion result (left-aligned in
+/// 32 bits), MSB first, once per transfer call: the ADC's output shift register.
+pub struct VirtualAdcBus {
+    conversion: u32,
+}
 impl SpiErrorType for VirtualAdcBus {
     type Error = Infallible;
 }
 impl VirtualAdcBus {
     #[inline(always)]
-    fn shift_out(words: &mut [u8]) {
-        let mut v = CONVERSION.load(Ordering::Relaxed);
+    fn shift_out(&self, words: &mut [u8]) {
+        let mut v = self.conversion;
         for w in words {
             *w = (v >> 24) as u8;
             v <<= 8;
@@ -150,7 +150,7 @@ impl VirtualAdcBus {
 }
 impl SpiBus<u8> for VirtualAdcBus {
     fn read(&mut self, words: &mut [u8]) -> Result<(), Infallible> {
-        Self::shift_out(words);
+        self.shift_out(words);
         Ok(())
     }
     fn write(&mut self, _: &[u8]) -> Result<(), Infallible> {
@@ -158,11 +158,11 @@ impl SpiBus<u8> for VirtualAdcBus {
     }
     #[inline(always)]
     fn transfer(&mut self, read: &mut [u8], _: &[u8]) -> Result<(), Infallible> {
-        Self::shift_out(read);
+        self.shift_out(read);
         Ok(())
     }
     fn transfer_in_place(&mut self, words: &mut [u8]) -> Result<(), Infallible> {
-        Self::shift_out(words);
+        self.shift_out(words);
         Ok(())
     }
     fn flush(&mut self) -> Result<(), Infallible> {
@@ -242,7 +242,7 @@ enum AdcSource {
 }
 
 pub struct QemuAdc {
-    dev: Ad4000<AdcDev>,
+    dev: Ad4000<AdcDev, part::Ad4000>,
     scale: Scale,
     source: AdcSource,
     phase: u32,
@@ -266,7 +266,7 @@ impl loop_body::Adc for QemuAdc {
         // The "conversion" lands in the ADC's output register, then the driver reads it over
         // SPI exactly as on the board.
         let raw = ad4000::encode(code, 16, ad4000::Coding::StraightBinary);
-        CONVERSION.store(raw << 16, Ordering::Relaxed);
+        self.dev.device_mut().bus_mut().conversion = raw << 16;
         match self.dev.read_code() {
             Ok(c) => Some(self.scale.to_metres(c)),
             Err(e) => match e {},
@@ -407,7 +407,7 @@ pub fn make_loop(
     let Some(feed) = b.feed_rx.take() else {
         fatal(8)
     };
-    let mut adc = Ad4000::new(device(VirtualAdcBus), Ad4000Config::AD4000);
+    let mut adc = Ad4000::new(device(VirtualAdcBus { conversion: 0 }), CFG_TURBO);
     let (Ok(()) | Err(_)) = adc.configure();
     let (Ok(()) | Err(_)) = adc.prime();
     LoopState::new(

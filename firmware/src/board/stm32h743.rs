@@ -22,7 +22,7 @@ use embedded_hal::digital::{ErrorType as PinErrorType, OutputPin};
 use embedded_hal::spi::{ErrorType as SpiErrorType, SpiBus};
 use stm32h7::stm32h743 as pac;
 use visco_firmware::core_glue::{ActiveCore, Mode};
-use visco_firmware::drivers::ad4000::{Ad4000, Ad4000Config};
+use visco_firmware::drivers::ad4000::{part, Ad4000, CFG_TURBO};
 use visco_firmware::drivers::ad5541::Ad5541;
 use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, TELEMETRY_DEPTH};
 use visco_firmware::scale::Scale;
@@ -291,7 +291,7 @@ fn device(bus: H7Spi, cs: Pin) -> CsDevice<H7Spi, Pin, CycleDelay> {
 }
 
 pub struct H7Adc {
-    dev: Ad4000<AdcDev>,
+    dev: Ad4000<AdcDev, part::Ad4000>,
     scale: Scale,
 }
 impl loop_body::Adc for H7Adc {
@@ -495,7 +495,7 @@ pub fn make_loop(
     alternate(GPIOB, 13, 5); // SPI2 SCK
     alternate(GPIOB, 15, 5); // SPI2 MOSI
     let cnv = Pin::output(GPIOA, 4);
-    let mut adc = Ad4000::new(device(H7Spi::new(0x4001_3000), cnv), Ad4000Config::AD4000);
+    let mut adc = Ad4000::new(device(H7Spi::new(0x4001_3000), cnv), CFG_TURBO);
     let (Ok(()) | Err(_)) = adc.configure();
     let (Ok(()) | Err(_)) = adc.prime();
     let spi2 = || H7Spi { base: 0x4000_3800 };

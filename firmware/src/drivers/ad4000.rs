@@ -37,53 +37,59 @@ pub enum Coding {
     TwosComplement,
 }
 
-/// The part's resolution and coding.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Ad4000Config {
-    /// 16 or 18.
-    pub bits: u8,
+/// A member of the family: resolution and coding are compile-time constants, so the loop's
+/// read has no branch on them.
+pub trait Part {
+    /// Bits per conversion (16 or 18).
+    const BITS: u32;
     /// Output coding.
-    pub coding: Coding,
-    /// Configuration register value written by [`Ad4000::configure`].
-    pub register: u8,
+    const CODING: Coding;
 }
 
-impl Ad4000Config {
-    /// AD4000: 16 bits, straight binary, turbo mode.
-    pub const AD4000: Self = Self {
-        bits: 16,
-        coding: Coding::StraightBinary,
-        register: CFG_TURBO,
-    };
-    /// AD4001: 16 bits, two's complement, turbo mode.
-    pub const AD4001: Self = Self {
-        bits: 16,
-        coding: Coding::TwosComplement,
-        register: CFG_TURBO,
-    };
-    /// AD4003: 18 bits, two's complement, turbo mode.
-    pub const AD4003: Self = Self {
-        bits: 18,
-        coding: Coding::TwosComplement,
-        register: CFG_TURBO,
-    };
+/// The parts.
+pub mod part {
+    use super::{Coding, Part};
+    /// AD4000 (and AD4004, AD4008): 16 bits, pseudo-differential, straight binary.
+    pub struct Ad4000;
+    /// AD4001 (and AD4005): 16 bits, differential, two's complement.
+    pub struct Ad4001;
+    /// AD4003 (and AD4007, AD4011): 18 bits, differential, two's complement.
+    pub struct Ad4003;
+    impl Part for Ad4000 {
+        const BITS: u32 = 16;
+        const CODING: Coding = Coding::StraightBinary;
+    }
+    impl Part for Ad4001 {
+        const BITS: u32 = 16;
+        const CODING: Coding = Coding::TwosComplement;
+    }
+    impl Part for Ad4003 {
+        const BITS: u32 = 18;
+        const CODING: Coding = Coding::TwosComplement;
+    }
 }
 
 /// An AD4000-family ADC on an SPI device whose chip select is CNV.
-pub struct Ad4000<S> {
+pub struct Ad4000<S, P: Part> {
     spi: S,
-    cfg: Ad4000Config,
+    register: u8,
+    _part: core::marker::PhantomData<P>,
 }
 
-impl<S: SpiDevice<u8>> Ad4000<S> {
-    /// Wraps the device; call [`Self::configure`] and [`Self::prime`] before the loop.
-    pub fn new(spi: S, cfg: Ad4000Config) -> Self {
-        Self { spi, cfg }
+impl<S: SpiDevice<u8>, P: Part> Ad4000<S, P> {
+    /// Wraps the device; `register` is the configuration written by [`Self::configure`]
+    /// (e.g. [`CFG_TURBO`]). Call [`Self::configure`] and [`Self::prime`] before the loop.
+    pub fn new(spi: S, register: u8) -> Self {
+        Self {
+            spi,
+            register,
+            _part: core::marker::PhantomData,
+        }
     }
 
     /// Writes the configuration register (needs SDI wired to MOSI).
     pub fn configure(&mut self) -> Result<(), S::Error> {
-        self.spi.write(&[CMD_WRITE, self.cfg.register])
+        self.spi.write(&[CMD_WRITE, self.register])
     }
 
     /// Reads the configuration register back (needs SDI wired to MOSI).
@@ -102,16 +108,22 @@ impl<S: SpiDevice<u8>> Ad4000<S> {
     /// starts the next conversion).
     #[inline(always)]
     pub fn read_code(&mut self) -> Result<i32, S::Error> {
-        if self.cfg.bits > 16 {
+        if P::BITS > 16 {
             let mut rx = [0u8; 3];
             self.spi.transfer(&mut rx, &[0xFF; 3])?;
             let raw = ((rx[0] as u32) << 10) | ((rx[1] as u32) << 2) | ((rx[2] as u32) >> 6);
-            Ok(decode(raw, 18, self.cfg.coding))
+            Ok(decode(raw, 18, P::CODING))
         } else {
             let mut rx = [0u8; 2];
             self.spi.transfer(&mut rx, &[0xFF; 2])?;
-            Ok(decode(u16::from_be_bytes(rx) as u32, 16, self.cfg.coding))
+            Ok(decode(u16::from_be_bytes(rx) as u32, 16, P::CODING))
         }
+    }
+
+    /// The SPI device (e.g. for a board's virtual converter).
+    #[inline(always)]
+    pub fn device_mut(&mut self) -> &mut S {
+        &mut self.spi
     }
 
     /// The SPI device back.
@@ -161,7 +173,8 @@ mod tests {
 
     #[test]
     fn reads_16_and_18_bits_over_spi() {
-        let mut adc = Ad4000::new(MockSpi::answering(&[0x7F, 0xFE]), Ad4000Config::AD4000);
+        let mut adc: Ad4000<_, part::Ad4000> =
+            Ad4000::new(MockSpi::answering(&[0x7F, 0xFE]), CFG_TURBO);
         assert_eq!(adc.read_code().unwrap(), 0x7FFE - 0x8000);
         let spi = adc.release();
         assert_eq!(spi.sent, [0xFF, 0xFF]);
@@ -169,16 +182,14 @@ mod tests {
         // 18 bits MSB first, left-aligned in 3 bytes: 0x2_0001 → -131071.
         let raw: u32 = 0x2_0001 << 6;
         let bytes = [(raw >> 16) as u8, (raw >> 8) as u8, raw as u8];
-        let mut adc = Ad4000::new(MockSpi::answering(&bytes), Ad4000Config::AD4003);
+        let mut adc: Ad4000<_, part::Ad4003> = Ad4000::new(MockSpi::answering(&bytes), CFG_TURBO);
         assert_eq!(adc.read_code().unwrap(), -131071);
     }
 
     #[test]
     fn register_access() {
-        let mut adc = Ad4000::new(
-            MockSpi::answering(&[0, 0, 0x00, 0xE3]),
-            Ad4000Config::AD4000,
-        );
+        let mut adc: Ad4000<_, part::Ad4001> =
+            Ad4000::new(MockSpi::answering(&[0, 0, 0x00, 0xE3]), CFG_TURBO);
         adc.configure().unwrap();
         assert_eq!(adc.read_register().unwrap(), 0xE3);
         assert_eq!(adc.release().sent, [CMD_WRITE, CFG_TURBO, CMD_READ, 0xFF]);
