@@ -2,6 +2,7 @@
 //! [`firmware_tests`].
 
 pub mod firmware;
+pub mod suite;
 /// The host end of the firmware link, shared with the `visco` crate (the same source file,
 /// included here so xtask does not build the whole host simulator).
 #[path = "../../host-sim/src/telemetry.rs"]

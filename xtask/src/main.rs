@@ -18,7 +18,8 @@ fn usage() -> &'static str {
                                 (compact blocks with digests, or --full: every field per sample)
   firmware-report [--json FILE] [--replay-samples N]
                                 all measurements; JSON as documented in firmware/README.md
-  test                          cargo test (workspace), then firmware-test
+  test                          everything: install tools, fmt, no_std build, host tests,
+                                firmware tests (what CI runs)
   firmware-test                 what `cargo xtask test` runs for the firmware
   flash-stm32h743 [--chip C]    build the STM32H743 image and run it with probe-rs (RTT log)
   link-throughput               diagnostic: each direction of the QEMU UART link alone
@@ -139,18 +140,7 @@ fn main() -> ExitCode {
             "firmware-test" => firmware::firmware_tests(),
             // Placeholder until the workspace's own `test` task lands: the host tests of the
             // default members, then the firmware tests.
-            "test" => {
-                let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-                let status = std::process::Command::new(cargo)
-                    .current_dir(firmware::root())
-                    .arg("test")
-                    .status()
-                    .map_err(|e| e.to_string())?;
-                if !status.success() {
-                    return Err(format!("cargo test failed: {status}"));
-                }
-                firmware::firmware_tests()
-            }
+            "test" => xtask::suite::run_all(),
             "link-throughput" => firmware::link_throughput(),
             "lockstep" => firmware::lockstep(num(rest, "--samples", 5_000usize)?),
             "flash-stm32h743" => firmware::flash_stm32h743(

@@ -6,6 +6,7 @@
 //! single line `error: ...` on stderr with a non-zero exit status; library errors such as
 //! `RecordingError` already read `FILE:LINE: reason (fix: ...)`.
 
+mod demo;
 mod import;
 
 use clap::{Parser, Subcommand};
@@ -24,6 +25,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// The paper's simulation study (DIVE and SVE on the embedded cell) with maps and a report.
+    Demo(demo::DemoArgs),
     /// Convert a vendor force-curve file (JPK, AFM Workshop, NT-MDT) into recording CSVs.
     Import(import::ImportArgs),
 }
@@ -33,6 +36,7 @@ enum Command {
 pub fn run() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Demo(args) => demo::run(args),
         Command::Import(args) => import::run(args),
     };
     match result {

@@ -27,7 +27,8 @@ pub struct ErrorStats {
     pub rms_pct: f64,
     /// Largest |error| over all pixels.
     pub max_pct: f64,
-    /// Largest |error| over the pixels whose footprint is not steep.
+    /// Largest |error| over the pixels whose footprint is neither steep nor over the sample's
+    /// border (see [`super::footprint_slope`]).
     pub max_not_steep_pct: f64,
     /// Mean error (bias).
     pub mean_pct: f64,

@@ -30,6 +30,7 @@
 //! On steep topography the flat-surface n and s̄ are wrong (Appendix B); see
 //! [`metrics::steep_slope`] for where that starts.
 
+pub mod demo;
 pub mod metrics;
 pub mod scaling;
 
@@ -456,11 +457,18 @@ pub fn scale_tap(
     }
 }
 
-/// Steepest element slope (|Δh| to a neighbour / pitch) within `radius` of any of `points`.
+/// Steepest element slope (|Δh| to a neighbour / pitch) within `radius` of any of `points`;
+/// infinite when a footprint reaches beyond the sample's area, where part of the tip has no
+/// elements under it (the sample's border is an edge too: the flat-bed geometry fails there
+/// as on a steep slope).
 pub fn footprint_slope(sample: &Sample, points: &[(f64, f64)], radius: f64) -> f64 {
     let slopes = sample.slope_map();
+    let [x0, x1, y0, y1] = sample.extent_m();
     let mut s: f64 = 0.0;
     for &(x, y) in points {
+        if x - radius < x0 || x + radius > x1 || y - radius < y0 || y + radius > y1 {
+            return f64::INFINITY;
+        }
         sample.for_each_within(x, y, radius, |e| s = s.max(slopes[e.index]));
     }
     s
