@@ -182,15 +182,17 @@ pub struct DemoReport {
     pub notes: Vec<String>,
 }
 
+/// (t, ĉ, k̂ (NaN outside a dwell), U min, U max over the block, tap index).
+type TracePoint = (f64, f64, f64, f64, f64, u32);
+
 /// Samples of the loop kept for Fig. 8 (DIVE: along the first row of taps, against time).
 #[derive(Default)]
 struct DiveTrace {
     row: u32,
     every: u32,
     count: u32,
-    /// (t, ĉ, k̂ (NaN outside a dwell), U min, U max over the block, tap index) while the
-    /// row's taps run.
-    points: Vec<(f64, f64, f64, f64, f64, u32)>,
+    /// Samples while the row's taps run.
+    points: Vec<TracePoint>,
     u_lo: f64,
     u_hi: f64,
     tap: u32,
@@ -268,8 +270,8 @@ impl Observer for SveTrace {
             Phase::Forward => {
                 let (c, k, h) = ctrl.estimates();
                 let v = [out.x_m as f64, c as f64, k as f64, h as f64, out.u_m as f64];
-                for i in 0..5 {
-                    self.acc[i] += v[i];
+                for (a, x) in self.acc.iter_mut().zip(v) {
+                    *a += x;
                 }
                 self.count += 1;
                 if self.count >= self.every {
@@ -800,7 +802,7 @@ fn write_outputs(
     // Fig. 8a: DIVE, the first row of taps against time, per element (paper scaling of each tap).
     let first_row_n: Vec<f64> = dive.taps.iter().map(|t| t.touched.n.max(1.0)).collect();
     let t0 = dtrace.points.first().map(|p| p.0).unwrap_or(0.0);
-    let per_tap = |f: fn(&(f64, f64, f64, f64, f64, u32), f64) -> f64| -> Vec<(f64, f64)> {
+    let per_tap = |f: fn(&TracePoint, f64) -> f64| -> Vec<(f64, f64)> {
         dtrace
             .points
             .iter()
