@@ -8,6 +8,7 @@
 
 mod demo;
 mod import;
+mod sweep;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -27,6 +28,8 @@ struct Cli {
 enum Command {
     /// The paper's simulation study (DIVE and SVE on the embedded cell) with maps and a report.
     Demo(demo::DemoArgs),
+    /// Imaging speed against accuracy (SVE line period, DIVE tap time) and the excitation study.
+    Sweep(sweep::SweepArgs),
     /// Convert a vendor force-curve file (JPK, AFM Workshop, NT-MDT) into recording CSVs.
     Import(import::ImportArgs),
 }
@@ -38,6 +41,7 @@ pub fn run() -> ExitCode {
     let result = match cli.command {
         Command::Demo(args) => demo::run(args),
         Command::Import(args) => import::run(args),
+        Command::Sweep(args) => sweep::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

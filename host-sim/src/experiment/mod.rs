@@ -31,8 +31,10 @@
 //! [`metrics::steep_slope`] for where that starts.
 
 pub mod demo;
+pub mod excitation_study;
 pub mod metrics;
 pub mod scaling;
+pub mod sweep;
 
 use crate::plant::{Plant, PlantConfig, PlantError};
 use crate::sample::Sample;
