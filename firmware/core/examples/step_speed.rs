@@ -16,7 +16,11 @@ fn main() {
             let out = c.step(d);
             acc += out.u_m;
             // A fake contact: deflection follows U below 0.
-            d = if out.u_m < 0.0 { out.u_m * 0.3 + 1e-10 * ((k % 7) as f32) } else { 0.0 };
+            d = if out.u_m < 0.0 {
+                out.u_m * 0.3 + 1e-10 * ((k % 7) as f32)
+            } else {
+                0.0
+            };
         }
         let dt = t.elapsed().as_secs_f64();
         println!("{mode:?}: {:.1} ns/step ({acc:e})", dt / n as f64 * 1e9);
