@@ -6,6 +6,7 @@
 //! single line `error: ...` on stderr with a non-zero exit status; library errors such as
 //! `RecordingError` already read `FILE:LINE: reason (fix: ...)`.
 
+mod identify;
 mod import;
 
 use clap::{Parser, Subcommand};
@@ -26,6 +27,8 @@ struct Cli {
 enum Command {
     /// Convert a vendor force-curve file (JPK, AFM Workshop, NT-MDT) into recording CSVs.
     Import(import::ImportArgs),
+    /// Identify a recording's viscoelastic parameters (dive, sve, force-curve) and its fit.
+    Identify(identify::IdentifyArgs),
 }
 
 /// Parses the command line, runs the subcommand, reports errors. Exit status: 0 success,
@@ -34,6 +37,7 @@ pub fn run() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Import(args) => import::run(args),
+        Command::Identify(args) => identify::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
