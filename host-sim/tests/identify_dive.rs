@@ -21,7 +21,7 @@ use std::sync::OnceLock;
 
 use identify_support::*;
 use visco::identify::{identify, Json, Options, Outcome};
-use visco::plant::{Converter, PlantConfig};
+use visco::plant::PlantConfig;
 use visco::recording::Recording;
 use visco::sample::Sample;
 use visco_core::{Config, TapRecord};
@@ -44,11 +44,14 @@ fn run() -> &'static (Recording, Vec<TapRecord<f32>>, Sample) {
         cfg.dive.dy_m = 0.45e-6;
         cfg.dive.tap_s = 0.05;
         let sample = Sample::flat(50, 50, 100e-9, [50e-9, 50e-9], H, C_EL, K_EL).unwrap();
-        // The core's DIVE swings D by ±1.2 µm (its ADC full scale is 2.5 µm); the plant's
-        // default ADC (±1 µm) would clip it.
-        let mut pc = PlantConfig::paper();
-        pc.adc_deflection = Converter::bipolar16(2.5e-6);
-        let run = simulate(&cfg, visco_core::Mode::Dive, pc, sample.clone(), 7, 400_000);
+        let run = simulate(
+            &cfg,
+            visco_core::Mode::Dive,
+            PlantConfig::paper(),
+            sample.clone(),
+            7,
+            400_000,
+        );
         assert_eq!(run.taps.len(), 4);
         (run.rec, run.taps, sample)
     })

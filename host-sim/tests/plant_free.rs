@@ -74,7 +74,7 @@ fn ring_down(plant: &mut Plant, steps: usize, h_s: f64, use_adc: bool) -> (f64, 
 fn resonance_and_q_from_ring_down() {
     let cfg = PlantConfig::paper();
     let cant = cfg.cantilever;
-    let (k, c, m) = (cant.stiffness_n_per_m, cant.damping_n_s_per_m, cant.mass_kg);
+    let (k, c, m) = (cant.k_n_per_m, cant.c_ns_per_m, cant.m_kg);
     let f0 = (k / m).sqrt() / (2.0 * std::f64::consts::PI);
     let q = (k * m).sqrt() / c;
     // Ideal plant at 1 µs and 2 µs, and the realistic one (noise, ADC) at 1 µs.
@@ -117,11 +117,7 @@ fn dac_step_response_at(h_us: f64) {
     p.set_time_step(h_us * 1e-6).unwrap();
     let cant = PlantConfig::ideal().cantilever;
     // Internal units: nm, µs.
-    let (m, c, k) = (
-        cant.mass_kg / 1e-12,
-        cant.damping_n_s_per_m / 1e-6,
-        cant.stiffness_n_per_m,
-    );
+    let (m, c, k) = (cant.m_kg / 1e-12, cant.c_ns_per_m / 1e-6, cant.k_n_per_m);
     let (a, b) = mass_spring_damper(m, c, k);
     let d = discretize2(a, b, h_us);
     let u1 = 10.0; // nm

@@ -22,7 +22,7 @@ fn plant(cfg: PlantConfig, seed: u64) -> Plant {
 #[test]
 fn thermal_deflection_variance_is_kt_over_k() {
     let cfg = PlantConfig::paper();
-    let expected = BOLTZMANN_J_PER_K * cfg.temperature_k / cfg.cantilever.stiffness_n_per_m;
+    let expected = BOLTZMANN_J_PER_K * cfg.temperature_k / cfg.cantilever.k_n_per_m;
     for (h, seconds) in [(1e-6, 10.0), (2e-6, 10.0)] {
         let mut p = plant(PlantConfig::paper(), 11);
         p.set_time_step(h).unwrap();
@@ -168,9 +168,9 @@ fn non_finite_commands_are_ignored() {
 #[test]
 fn invalid_configuration_is_an_error_with_context() {
     let mut cfg = PlantConfig::paper();
-    cfg.cantilever.mass_kg = -1.0;
+    cfg.cantilever.m_kg = -1.0;
     let e = Plant::new(cfg, Sample::cell_phantom(), 1).unwrap_err();
-    assert!(e.to_string().contains("cantilever.mass_kg"), "{e}");
+    assert!(e.to_string().contains("cantilever.m_kg"), "{e}");
     let mut cfg = PlantConfig::paper();
     cfg.adc_deflection.bits = 0;
     let e = Plant::new(cfg, Sample::cell_phantom(), 1).unwrap_err();

@@ -71,7 +71,7 @@ fn continuum_formula_is_the_cap_volume() {
 fn static_equilibrium_matches_lattice_sum() {
     let s = bed();
     let mut p = Plant::new(PlantConfig::ideal(), s.clone(), 1).unwrap();
-    let kc = PlantConfig::ideal().cantilever.stiffness_n_per_m;
+    let kc = PlantConfig::ideal().cantilever.k_n_per_m;
     for (ox, oy) in [NUDGE, (50e-9, 0.0), (23e-9, 41e-9)] {
         let (x, y) = (X0 + ox, X0 + oy);
         for i in 0..80 {
@@ -99,7 +99,7 @@ fn dynamics_settles_to_static_solution() {
     let mut p = Plant::new(PlantConfig::ideal(), s, 1).unwrap();
     let mut q = Plant::new(PlantConfig::ideal(), bed(), 1).unwrap();
     let cant = PlantConfig::ideal().cantilever;
-    let envelope = (-20e-3 * cant.damping_n_s_per_m / (2.0 * cant.mass_kg)).exp();
+    let envelope = (-20e-3 * cant.c_ns_per_m / (2.0 * cant.m_kg)).exp();
     for u in [H + 10e-9, H - 60e-9, H - 250e-9, H - 600e-9] {
         p.settle(H + 50e-9, X0, X0);
         for _ in 0..20_000 {
@@ -215,7 +215,7 @@ fn submerged_tip_force() {
 fn slow_approach_force_curve() {
     let s = bed();
     let mut p = Plant::new(PlantConfig::ideal(), s.clone(), 1).unwrap();
-    let kc = PlantConfig::ideal().cantilever.stiffness_n_per_m;
+    let kc = PlantConfig::ideal().cantilever.k_n_per_m;
     let (x, y) = (X0 + NUDGE.0, X0 + NUDGE.1);
     p.settle(H + 20e-9, x, y);
     let mut worst_balance: f64 = 0.0;

@@ -1,1 +1,168 @@
-fn main() {}
+//! `cargo xtask <task>`: see `usage()`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use xtask::firmware;
+
+fn usage() -> &'static str {
+    "usage: cargo xtask <task>
+  firmware                      build both boards (qemu, stm32h743) in release, print sizes
+  qemu-smoke [--steps N]        boot the QEMU image, run N loop samples per mode, check the log
+  panic-check                   prove no panic path is linked (panic-never handler + canary)
+  calibrate [--shifts 0,3,6] [--m3]
+                                SysTick ticks vs counted instructions under -icount
+  bench [--steps N] [--shift S] [--m3]
+                                instructions per loop interrupt, DIVE and SVE (--m3: the
+                                thumbv7m-none-eabi build on mps2-an385, Cortex-M3, soft float)
+  replay [--samples N] [--full] replay N samples through QEMU, compare with the host bit for bit
+                                (compact blocks with digests, or --full: every field per sample)
+  firmware-report [--json FILE] [--replay-samples N]
+                                all measurements; JSON as documented in firmware/README.md
+  test                          everything: install tools, fmt, no_std build, host tests,
+                                firmware tests (what CI runs)
+  firmware-test                 what `cargo xtask test` runs for the firmware
+  flash-stm32h743 [--chip C]    build the STM32H743 image and run it with probe-rs (RTT log)
+  link-throughput               diagnostic: each direction of the QEMU UART link alone
+  lockstep [--samples N]        closed loop: host plant ↔ firmware under QEMU, one round trip
+                                per sample, compared with the host-only run
+  defmt ELF STREAM              decode a defmt stream (e.g. QEMU semihosting output)"
+}
+
+fn arg_value(args: &[String], name: &str) -> Option<String> {
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1).cloned())
+}
+
+fn num<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> Result<T, String> {
+    match arg_value(args, name) {
+        None => Ok(default),
+        Some(v) => v
+            .parse()
+            .map_err(|_| format!("{name} needs a number, got {v:?}")),
+    }
+}
+
+fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let Some(task) = args.first().cloned() else {
+        eprintln!("{}", usage());
+        return ExitCode::FAILURE;
+    };
+    let rest = &args[1..];
+    let result = (|| -> Result<(), String> {
+        match task.as_str() {
+            "firmware" => firmware::build_all().map(|_| ()),
+            "qemu-smoke" => firmware::qemu_smoke(num(rest, "--steps", 20_000)?),
+            "panic-check" => firmware::panic_check(),
+            "calibrate" => {
+                firmware::ensure_tools()?;
+                let shifts: Vec<u32> = arg_value(rest, "--shifts")
+                    .unwrap_or_else(|| "0,3,6".into())
+                    .split(',')
+                    .map(|s| s.trim().parse().map_err(|_| format!("bad shift {s:?}")))
+                    .collect::<Result<_, _>>()?;
+                let m = if rest.iter().any(|a| a == "--m3") {
+                    firmware::M3
+                } else {
+                    firmware::M7
+                };
+                let elf = firmware::build_for(m.target, firmware::Board::Qemu, &[])?;
+                println!("{} ({}), {}", m.machine, m.cpu, m.target);
+                let c = firmware::calibrate_on(m, &elf, &shifts)?;
+                for p in &c.points {
+                    println!(
+                        "shift={} iterations={} instructions={} ticks={} instructions/tick={:.4}",
+                        p.shift,
+                        p.iterations,
+                        p.instructions,
+                        p.ticks,
+                        f64::from(p.instructions) / f64::from(p.ticks)
+                    );
+                }
+                for (shift, m, e) in &c.slopes {
+                    println!("shift={shift}: slope {m:.6} instructions/tick, expected 40/2^{shift} = {e:.6}");
+                }
+                Ok(())
+            }
+            "bench" => {
+                firmware::ensure_tools()?;
+                let steps = num(rest, "--steps", firmware::BENCH_STEPS)?;
+                let shift = num(rest, "--shift", 0u32)?;
+                let m = if rest.iter().any(|a| a == "--m3") {
+                    firmware::M3
+                } else {
+                    firmware::M7
+                };
+                let elf = firmware::build_for(m.target, firmware::Board::Qemu, &[])?;
+                println!("{} ({}), {}", m.machine, m.cpu, m.target);
+                for mode in [
+                    None,
+                    Some(visco_protocol::Mode::Dive),
+                    Some(visco_protocol::Mode::Sve),
+                ] {
+                    let b = firmware::bench_on(m, &elf, mode, steps, shift)?;
+                    let name = mode.map_or("core stopped".to_string(), |m| format!("{m:?}"));
+                    println!(
+                        "{name}: {:.3} instructions per loop interrupt (±{:.3}), {} steps, {} ticks, {} idle iterations",
+                        b.insns_per_step, b.resolution, b.steps, b.ticks, b.idle_iterations
+                    );
+                }
+                Ok(())
+            }
+            "replay" => {
+                firmware::ensure_tools()?;
+                let n = num(rest, "--samples", 100_000usize)?;
+                let elf = firmware::build(firmware::Board::Qemu, &[])?;
+                let mut ok = true;
+                for mode in [visco_protocol::Mode::Dive, visco_protocol::Mode::Sve] {
+                    let r = firmware::replay(&elf, mode, n, rest.iter().any(|a| a == "--full"))?;
+                    println!(
+                        "replay {mode:?}: {} samples in {:.2} s = {:.0} samples/s, bit-identical {}, link: {}",
+                        r.samples,
+                        r.output.elapsed.as_secs_f64(),
+                        r.samples_per_s,
+                        r.bit_identical,
+                        r.output.stats
+                    );
+                    ok &= r.bit_identical;
+                }
+                if ok {
+                    Ok(())
+                } else {
+                    Err("replay is not bit-identical".into())
+                }
+            }
+            "firmware-report" => firmware::firmware_report(
+                arg_value(rest, "--json").map(PathBuf::from).as_deref(),
+                num(rest, "--replay-samples", 100_000usize)?,
+            ),
+            "firmware-test" => firmware::firmware_tests(),
+            // Placeholder until the workspace's own `test` task lands: the host tests of the
+            // default members, then the firmware tests.
+            "test" => xtask::suite::run_all(),
+            "link-throughput" => firmware::link_throughput(),
+            "lockstep" => firmware::lockstep(num(rest, "--samples", 5_000usize)?),
+            "flash-stm32h743" => firmware::flash_stm32h743(
+                &arg_value(rest, "--chip").unwrap_or_else(|| "STM32H743ZITx".into()),
+            ),
+            "defmt" => {
+                let (Some(elf), Some(stream)) = (rest.first(), rest.get(1)) else {
+                    return Err(usage().into());
+                };
+                for l in firmware::decode_defmt(elf.as_ref(), stream.as_ref())? {
+                    println!("{l}");
+                }
+                Ok(())
+            }
+            _ => Err(format!("unknown task {task:?}\n{}", usage())),
+        }
+    })();
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -8,7 +8,10 @@ fn main() {
         let cfg = Config::paper(1e6);
         let mut c = Controller::<f32>::new(&cfg).unwrap();
         c.command(Command::Start(mode));
-        let n = 20_000_000u32;
+        let n: u32 = std::env::args()
+            .nth(1)
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(20_000_000);
         let t = Instant::now();
         let mut d = 0.0f32;
         let mut acc = 0.0f32;

@@ -466,6 +466,7 @@ impl EstimatorConfig {
         let mut p = crate::estimator::EstimatorParams {
             kind: self.kind,
             period: t(period_us),
+            inv_period: t(1.0 / period_us),
             alpha: t(self.alpha),
             forget: t(1.0 + self.beta_per_s / sample_rate_hz),
             r0: t(self.r0),

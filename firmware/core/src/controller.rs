@@ -67,6 +67,8 @@ pub mod status {
     pub const NO_CONTACT: u32 = 1 << 12;
     /// The dwell was too short for settle + read-out (slow approach).
     pub const SHORT_DWELL: u32 = 1 << 13;
+    /// This sample went into the average of a tap's read-out or of a pixel.
+    pub const READOUT: u32 = 1 << 14;
     /// Shift of the phase code (see [`super::Phase`]) in the status word.
     pub const PHASE_SHIFT: u32 = 24;
 }
@@ -902,6 +904,7 @@ impl<T: SineTable> Controller<T> {
                         self.dive
                             .acc
                             .add([th[0], th[1], th[2], h - self.reg.z().x, self.dive.z0], f);
+                        *st |= status::READOUT;
                     }
                 }
                 if t + p.ramp_samples >= self.dive.dwell_end {
@@ -1104,7 +1107,9 @@ impl<T: SineTable> Controller<T> {
                 }
                 *st |= f;
                 self.sve.u_cmd = u_d;
-                self.sve_sequence(t, [th[0], th[1], h_hat, depth, T::ZERO], f);
+                if self.sve_sequence(t, [th[0], th[1], h_hat, depth, T::ZERO], f) {
+                    *st |= status::READOUT;
+                }
                 u_d + self.exc.next(&p.exc)
             }
             Phase::Retract => {
@@ -1123,8 +1128,10 @@ impl<T: SineTable> Controller<T> {
 
     /// The raster: settle, then forward, backward, turn per line; pixel bins along the way.
     #[inline(always)]
-    fn sve_sequence(&mut self, t: u32, v: [T; 5], flags: u32) {
+    /// Returns true when the sample went into a pixel.
+    fn sve_sequence(&mut self, t: u32, v: [T; 5], flags: u32) -> bool {
         let p = self.p.sve;
+        let mut read = false;
         match self.phase {
             Phase::Settle if t >= p.settle_samples => self.begin_line(true),
             Phase::Forward | Phase::Backward => {
@@ -1138,6 +1145,7 @@ impl<T: SineTable> Controller<T> {
                 let y = self.y;
                 self.set_xy(x, y);
                 self.sve.acc.add(v, flags);
+                read = true;
                 self.sve.x_acc += self.x - p.x0;
                 if t >= self.sve.next_boundary {
                     self.finish_pixel(forward);
@@ -1174,6 +1182,7 @@ impl<T: SineTable> Controller<T> {
             }
             _ => {}
         }
+        read
     }
 
     fn begin_line(&mut self, forward: bool) {

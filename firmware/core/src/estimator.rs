@@ -61,6 +61,8 @@ pub struct EstimatorParams<T, const N: usize> {
     pub kind: EstimatorKind,
     /// Loop period T.
     pub period: T,
+    /// 1/T.
+    pub inv_period: T,
     /// α of m² = 1 + α·φᵀφ.
     pub alpha: T,
     /// 1 + β·T, the per-sample forgetting factor.
@@ -195,7 +197,7 @@ impl<T: Real, const N: usize> Estimator<T, N> {
                     g[i] = f * s;
                     phig += phi[i] * g[i];
                 }
-                let den = m2 / params.period + phig;
+                let den = m2 * params.inv_period + phig;
                 // den > 0 for a positive definite P; anything else (NaN, overflow, lost
                 // definiteness through rounding) restarts P rather than poison θ.
                 if !(den > T::ZERO) || !den.is_finite() || !e.is_finite() {

@@ -163,6 +163,18 @@ impl<T: Real> Prefilter<T> {
         }
     }
 
+    /// Take the new sample `x` of a staircase ([`Hold::Zero`] coefficients) and return `x/Λ` and
+    /// `s·x/Λ` only: the U filter's path, which needs neither the previous sample nor the
+    /// second derivative.
+    #[inline(always)]
+    pub fn update_held(&mut self, c: &PrefilterCoeffs<T>, x: T) -> (T, T) {
+        let y = c.phi[0][0] * self.y + c.phi[0][1] * self.dy + c.g_new[0] * x;
+        let dy = c.phi[1][0] * self.y + c.phi[1][1] * self.dy + c.g_new[1] * x;
+        self.y = y;
+        self.dy = dy;
+        (y, dy)
+    }
+
     /// The current outputs `x/Λ` and `s·x/Λ` without a new sample.
     #[inline(always)]
     pub fn state(&self) -> (T, T) {
@@ -245,6 +257,7 @@ mod tests {
         let c8 = PrefilterCoeffs::<f64>::new(lambda, 0.125, Hold::Zero);
         let mut p1 = Prefilter::at_rest(0.0);
         let mut p8 = Prefilter::at_rest(0.0);
+        let mut ph = Prefilter::at_rest(0.0);
         for k in 0..2000 {
             let x = libm::sin(0.05 * k as f64) + if k % 7 == 0 { 1.0 } else { 0.0 };
             let o1 = p1.update(&c1, x);
@@ -254,6 +267,11 @@ mod tests {
             }
             assert!((o1.x - o8.x).abs() < 1e-12 && (o1.dx - o8.dx).abs() < 1e-12);
             assert!((o1.ddx - o8.ddx).abs() < 1e-11);
+            let (y, dy) = ph.update_held(&c1, x);
+            assert!(
+                y == o1.x && dy == o1.dx,
+                "the held path must equal the general one"
+            );
         }
     }
 

@@ -81,7 +81,12 @@ impl<T: Real> Regressor<T> {
     #[inline(always)]
     pub fn update(&mut self, p: &RegressorParams<T>, u: T, z: T) {
         self.z = self.zf.update(&p.z, z);
-        self.u = self.uf.update(&p.u, self.u_prev);
+        let (uy, udy) = self.uf.update_held(&p.u, self.u_prev);
+        self.u = Filtered {
+            x: uy,
+            dx: udy,
+            ddx: T::ZERO,
+        };
         self.u_prev = u;
     }
 
@@ -91,7 +96,7 @@ impl<T: Real> Regressor<T> {
         self.z
     }
 
-    /// U/Λ, s·U/Λ and s²·U/Λ (the last at the left limit of the staircase).
+    /// U/Λ and s·U/Λ (the U filter does not form s²·U/Λ: nothing needs it; `ddx` is 0).
     #[inline(always)]
     pub fn u(&self) -> Filtered<T> {
         self.u

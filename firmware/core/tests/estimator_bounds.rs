@@ -8,6 +8,7 @@ fn params(kind: EstimatorKind, alpha: f64, r0: f64, gain: f64) -> EstimatorParam
     EstimatorParams {
         kind,
         period: 1.0,
+        inv_period: 1.0,
         alpha,
         forget: 1.0 + 1e-3,
         r0,
@@ -193,6 +194,7 @@ proptest! {
         let p = EstimatorParams::<f32, 3> {
             kind: p64.kind,
             period: 1.0,
+            inv_period: 1.0,
             alpha: p64.alpha as f32,
             forget: p64.forget as f32,
             r0: p64.r0 as f32,

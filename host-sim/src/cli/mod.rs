@@ -6,8 +6,10 @@
 //! single line `error: ...` on stderr with a non-zero exit status; library errors such as
 //! `RecordingError` already read `FILE:LINE: reason (fix: ...)`.
 
+mod demo;
 mod identify;
 mod import;
+mod sweep;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -25,6 +27,10 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// The paper's simulation study (DIVE and SVE on the embedded cell) with maps and a report.
+    Demo(demo::DemoArgs),
+    /// Imaging speed against accuracy (SVE line period, DIVE tap time) and the excitation study.
+    Sweep(sweep::SweepArgs),
     /// Convert a vendor force-curve file (JPK, AFM Workshop, NT-MDT) into recording CSVs.
     Import(import::ImportArgs),
     /// Identify a recording's viscoelastic parameters (dive, sve, force-curve) and its fit.
@@ -36,8 +42,10 @@ enum Command {
 pub fn run() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Demo(args) => demo::run(args),
         Command::Import(args) => import::run(args),
         Command::Identify(args) => identify::run(args),
+        Command::Sweep(args) => sweep::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -542,11 +542,7 @@ impl BlockTrack {
 /// unlimited travel, at the recording's rate, on `sample`.
 pub fn fit_plant(cant: &Cantilever, r: f64, fs: f64, sample: Sample) -> Result<Plant> {
     let mut cfg = PlantConfig::ideal();
-    cfg.cantilever = crate::plant::Cantilever {
-        stiffness_n_per_m: cant.k_n_per_m,
-        damping_n_s_per_m: cant.c_ns_per_m,
-        mass_kg: cant.m_kg,
-    };
+    cfg.cantilever = *cant;
     cfg.tip_radius_m = r;
     cfg.time_step_s = 1.0 / fs;
     cfg.travel_z = Travel {

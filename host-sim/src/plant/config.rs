@@ -5,37 +5,9 @@ use super::PlantError;
 /// Boltzmann constant (J/K).
 pub const BOLTZMANN_J_PER_K: f64 = 1.380_649e-23;
 
-/// First-mode cantilever: `M·Z̈ = K·D + C·Ḋ + F_ts` (2).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Cantilever {
-    /// K.
-    pub stiffness_n_per_m: f64,
-    /// C.
-    pub damping_n_s_per_m: f64,
-    /// M (effective mass).
-    pub mass_kg: f64,
-}
-
-impl Cantilever {
-    /// From the resonance `f0 = √(K/M)/2π` and quality factor `Q = √(K·M)/C`.
-    pub fn from_resonance(stiffness_n_per_m: f64, f0_hz: f64, q: f64) -> Self {
-        let w0 = 2.0 * std::f64::consts::PI * f0_hz;
-        let mass_kg = stiffness_n_per_m / (w0 * w0);
-        Cantilever {
-            stiffness_n_per_m,
-            damping_n_s_per_m: (stiffness_n_per_m * mass_kg).sqrt() / q,
-            mass_kg,
-        }
-    }
-    /// Undamped resonance frequency `√(K/M)/2π`.
-    pub fn f0_hz(&self) -> f64 {
-        (self.stiffness_n_per_m / self.mass_kg).sqrt() / (2.0 * std::f64::consts::PI)
-    }
-    /// Quality factor `√(K·M)/C`.
-    pub fn q(&self) -> f64 {
-        (self.stiffness_n_per_m * self.mass_kg).sqrt() / self.damping_n_s_per_m
-    }
-}
+/// The cantilever's first mode (2): the core's type, one definition for the estimator and the
+/// plant.
+pub use visco_core::Cantilever;
 
 /// A uniform converter (ADC or DAC) over `[min, max)`: `2^bits` codes, code `q` stands for
 /// `min + q·lsb` with `lsb = (max − min)/2^bits`. A symmetric range (±r) therefore has 0 as a
@@ -144,11 +116,7 @@ impl PlantConfig {
     /// `Q = √(K·M)/C = 98.5`, which the paper rounds to 20 kHz and 100.
     pub fn paper() -> Self {
         PlantConfig {
-            cantilever: Cantilever {
-                stiffness_n_per_m: 0.18,
-                damping_n_s_per_m: 1.48e-8,
-                mass_kg: 1.18e-11,
-            },
+            cantilever: Cantilever::PAPER,
             tip_radius_m: 300e-9,
             temperature_k: 300.0,
             thermal_noise: true,
@@ -206,12 +174,12 @@ impl PlantConfig {
                 ))
             }
         };
-        pos("cantilever.stiffness_n_per_m", c.stiffness_n_per_m)?;
-        pos("cantilever.mass_kg", c.mass_kg)?;
-        if !(c.damping_n_s_per_m.is_finite() && c.damping_n_s_per_m >= 0.0) {
+        pos("cantilever.k_n_per_m", c.k_n_per_m)?;
+        pos("cantilever.m_kg", c.m_kg)?;
+        if !(c.c_ns_per_m.is_finite() && c.c_ns_per_m >= 0.0) {
             return Err(PlantError::config(
-                "cantilever.damping_n_s_per_m",
-                format!("{} must be finite and ≥ 0", c.damping_n_s_per_m),
+                "cantilever.c_ns_per_m",
+                format!("{} must be finite and ≥ 0", c.c_ns_per_m),
             ));
         }
         pos("tip_radius_m", self.tip_radius_m)?;

@@ -297,10 +297,10 @@ impl Plant {
         config.validate()?;
         let c = &config.cantilever;
         let mut p = Plant {
-            m: c.mass_kg / MASS,
-            k_cant: c.stiffness_n_per_m / STIFFNESS,
-            c_cant: c.damping_n_s_per_m / DAMPING,
-            c_over_m: (c.damping_n_s_per_m / DAMPING) / (c.mass_kg / MASS),
+            m: c.m_kg / MASS,
+            k_cant: c.k_n_per_m / STIFFNESS,
+            c_cant: c.c_ns_per_m / DAMPING,
+            c_over_m: (c.c_ns_per_m / DAMPING) / (c.m_kg / MASS),
             r_tip: config.tip_radius_m / LENGTH,
             extra_k: 0.0,
             extra_c: 0.0,

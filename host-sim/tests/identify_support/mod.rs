@@ -27,6 +27,11 @@ pub fn simulate(
     seed: u64,
     max_steps: usize,
 ) -> SimRun {
+    // The instrument's converters matched to the core's ranges, as the experiments do.
+    let mut setup = visco::experiment::Setup::paper(sample, cfg.sample_rate_hz, seed);
+    setup.plant.thermal_noise = plant_cfg.thermal_noise;
+    let plant_cfg = setup.plant.clone();
+    let sample = setup.sample.clone();
     let fs = cfg.sample_rate_hz;
     let mut ctrl = Controller::<f32>::new(cfg).expect("valid configuration");
     let mut plant = Plant::new(plant_cfg.clone(), sample, seed).expect("valid plant");
@@ -41,11 +46,11 @@ pub fn simulate(
             visco_core::Mode::Sve => Mode::Sve,
         },
         fs,
-        plant_cfg.cantilever.stiffness_n_per_m,
+        plant_cfg.cantilever.k_n_per_m,
         plant_cfg.tip_radius_m,
     );
-    meta.cantilever_c_ns_per_m = Some(plant_cfg.cantilever.damping_n_s_per_m);
-    meta.cantilever_m_kg = Some(plant_cfg.cantilever.mass_kg);
+    meta.cantilever_c_ns_per_m = Some(plant_cfg.cantilever.c_ns_per_m);
+    meta.cantilever_m_kg = Some(plant_cfg.cantilever.m_kg);
     meta.set(
         "source",
         "visco tests: controller (f32) in closed loop with the plant",

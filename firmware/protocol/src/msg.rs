@@ -1,0 +1,788 @@
+//! The messages: commands from the host and telemetry from the firmware.
+//!
+//! Every message is a kind byte followed by fixed little-endian fields (see [`crate::wire`]);
+//! there is no self-description on the wire, so both ends must agree on
+//! [`PROTOCOL_VERSION`], which the firmware announces in [`Telemetry::Hello`]. The layouts
+//! are written out by hand rather than derived (serde/postcard) to keep the firmware free of
+//! dependencies and panic paths and to make the byte cost of a replay sample explicit.
+
+use crate::wire::{Reader, Short, Writer};
+
+/// Bumped whenever a layout below changes.
+pub const PROTOCOL_VERSION: u16 = 1;
+
+/// The most samples one [`Command::Feed`] block carries (f32 samples: 4 bytes each).
+pub const MAX_FEED: usize = 48;
+
+/// Why a message could not be decoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DecodeError {
+    /// The frame ended before the message did.
+    Short,
+    /// Bytes were left over after the message.
+    Trailing,
+    /// Unknown message kind byte.
+    UnknownKind(u8),
+    /// A field holds a value outside its range.
+    BadValue,
+}
+
+impl From<Short> for DecodeError {
+    fn from(_: Short) -> Self {
+        DecodeError::Short
+    }
+}
+
+/// The identification mode.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    /// Tap-by-tap identification (dive and retract).
+    Dive,
+    /// Scanning viscoelastic identification: one record per pixel.
+    Sve,
+}
+
+impl Mode {
+    fn to_u8(self) -> u8 {
+        match self {
+            Mode::Dive => 1,
+            Mode::Sve => 2,
+        }
+    }
+    fn from_u8(v: u8) -> Result<Self, DecodeError> {
+        match v {
+            1 => Ok(Mode::Dive),
+            2 => Ok(Mode::Sve),
+            _ => Err(DecodeError::BadValue),
+        }
+    }
+}
+
+/// What drives the loop.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Source {
+    /// A hardware timer at a fixed period (board timer ticks); the ADC is sampled each tick.
+    /// Under QEMU the "ADC" then produces a synthetic deterministic signal.
+    Timer {
+        /// Timer reload in board ticks (QEMU: 25 MHz CMSDK timer; STM32H743: TIM2 ticks).
+        period_ticks: u32,
+    },
+    /// Replay: one loop step per sample fed by [`Command::Feed`] (QEMU board only).
+    Feed,
+}
+
+/// How the loop's per-sample outputs are reported.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PerSample {
+    /// Not at all (real-time running: records and status only).
+    Off,
+    /// One [`Telemetry::Step`] per sample: every field (≈ 50 bytes per sample on the wire).
+    Full,
+    /// [`Telemetry::StepBlock`]s: the DAC code and status of each sample plus a CRC-32
+    /// digest of all the Step fields of the block (≈ 4.4 bytes per sample): what a long
+    /// replay uses; rerun the failing part with `Full` to see the differing values.
+    Blocks,
+}
+
+impl PerSample {
+    fn to_u8(self) -> u8 {
+        match self {
+            PerSample::Off => 0,
+            PerSample::Full => 1,
+            PerSample::Blocks => 2,
+        }
+    }
+    fn from_u8(v: u8) -> Result<Self, DecodeError> {
+        match v {
+            0 => Ok(PerSample::Off),
+            1 => Ok(PerSample::Full),
+            2 => Ok(PerSample::Blocks),
+            _ => Err(DecodeError::BadValue),
+        }
+    }
+}
+
+/// The samples of one [`Command::Feed`] block.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum FeedSamples {
+    /// Raw ADC codes, signed relative to mid-scale, converted on target exactly as on the
+    /// board (`code as f32 * metres_per_code`).
+    Codes([i16; MAX_FEED]),
+    /// Deflection in metres, handed to `step` unchanged (bypasses the ADC quantisation).
+    Metres([f32; MAX_FEED]),
+}
+
+/// A block of replay samples.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FeedBlock {
+    /// Index of the first sample in the replay (lets the firmware detect a lost block).
+    pub first_index: u32,
+    /// Number of valid samples (≤ [`MAX_FEED`]).
+    pub len: u8,
+    /// The samples; entries past `len` are zero.
+    pub samples: FeedSamples,
+}
+
+/// A host → firmware command.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Command {
+    /// Answered by an [`Telemetry::Ack`] with the same frame sequence number.
+    Ping {
+        /// Echoed in the status code field of nothing; for the host's own matching.
+        nonce: u32,
+    },
+    /// Stages one configuration value (SI units); see [`param`] for the ids.
+    SetParam {
+        /// Parameter id.
+        id: u16,
+        /// Value in SI units.
+        value: f64,
+    },
+    /// Validates the staged configuration and rebuilds the controller (only while stopped).
+    ApplyConfig,
+    /// Starts identification in a mode.
+    Start(Mode),
+    /// Stops identification (the outputs hold).
+    Stop,
+    /// Selects what drives the loop.
+    SetSource(Source),
+    /// Replay samples.
+    Feed(FeedBlock),
+    /// Telemetry choices.
+    SetTelemetry {
+        /// Per-sample outputs (replay); off for real-time running.
+        per_sample: PerSample,
+        /// A [`Telemetry::Status`] every this many samples (0: only on request).
+        status_every: u32,
+    },
+    /// Sends a [`Telemetry::Status`] now.
+    RequestStatus,
+    /// Measures the loop interrupt (QEMU board: instructions via SysTick under `-icount`).
+    Bench {
+        /// Mode to run the loop in while measuring; `None`: the core stopped (its outputs
+        /// hold), which measures what the interrupt costs around `step`.
+        mode: Option<Mode>,
+        /// Number of loop interrupts to measure (≥ 10 000 for the report).
+        steps: u32,
+        /// Loop timer period in board ticks during the measurement.
+        period_ticks: u32,
+    },
+    /// Runs the SysTick calibration loop (QEMU board).
+    Calibrate {
+        /// Iterations of the two-instruction `subs`/`bne` loop.
+        iterations: u32,
+    },
+    /// Ends the emulation with an exit code (QEMU board: semihosting exit, after the Ack).
+    Exit {
+        /// Process exit code of QEMU (0 = success).
+        code: u8,
+    },
+}
+
+/// Parameter ids of [`Command::SetParam`]. The board's own conversion factors live here;
+/// the core's configuration fields get ids from 100 on, assigned where the core's `Config`
+/// is mapped (`firmware/src/core_glue.rs`).
+pub mod param {
+    /// ADC: metres of deflection per code.
+    pub const ADC_METRES_PER_CODE: u16 = 1;
+    /// DAC (U): metres per code (used by the stand-in core to quantise U).
+    pub const DAC_METRES_PER_CODE: u16 = 2;
+    /// Lateral DACs (X, Y): metres per code.
+    pub const LATERAL_METRES_PER_CODE: u16 = 3;
+    /// First id of the core's configuration fields.
+    pub const CORE_BASE: u16 = 100;
+}
+
+/// Board ids announced in [`Telemetry::Hello`].
+pub mod board {
+    /// QEMU `mps2-an500`.
+    pub const QEMU_MPS2_AN500: u8 = 1;
+    /// STM32H743.
+    pub const STM32H743: u8 = 2;
+}
+
+/// Result codes of [`Telemetry::Ack`].
+pub mod ack {
+    /// Done.
+    pub const OK: u8 = 0;
+    /// Not possible in the current state (e.g. `ApplyConfig` while running).
+    pub const BUSY: u8 = 1;
+    /// A value was rejected (configuration validation, unknown parameter id).
+    pub const INVALID: u8 = 2;
+    /// Not supported on this board (e.g. `Feed` on real hardware).
+    pub const UNSUPPORTED: u8 = 3;
+    /// A replay block did not start where the previous one ended.
+    pub const FEED_GAP: u8 = 4;
+}
+
+/// One loop sample as the firmware computed it (replay and debugging).
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct StepFrame {
+    /// Loop sample index since start of the source.
+    pub index: u32,
+    /// The deflection handed to `step` (metres), to check both sides used the same input.
+    pub d_m: f32,
+    /// The core's DAC code (signed, relative to mid-scale).
+    pub u_code: i32,
+    /// The word written to the DAC over SPI (offset binary), as the hardware would see it.
+    pub dac_word: u16,
+    /// U in metres.
+    pub u_m: f32,
+    /// Lateral setpoints in metres.
+    pub x_m: f32,
+    /// Lateral setpoints in metres.
+    pub y_m: f32,
+    /// The core's status flags.
+    pub status: u16,
+    /// Current aggregate estimates (c, k, h) in SI, as f32.
+    pub estimates: [f32; 3],
+}
+
+impl StepFrame {
+    /// The fields as they travel in a Step message (after the kind byte); also the input of
+    /// [`step_digest`].
+    pub fn encode_fields(&self, w: &mut Writer<'_>) -> Result<(), Short> {
+        w.u32(self.index)?;
+        w.f32(self.d_m)?;
+        w.i32(self.u_code)?;
+        w.u16(self.dac_word)?;
+        w.f32(self.u_m)?;
+        w.f32(self.x_m)?;
+        w.f32(self.y_m)?;
+        w.u16(self.status)?;
+        est(w, &self.estimates)
+    }
+    fn decode_fields(r: &mut Reader<'_>) -> Result<Self, Short> {
+        Ok(StepFrame {
+            index: r.u32()?,
+            d_m: r.f32()?,
+            u_code: r.i32()?,
+            dac_word: r.u16()?,
+            u_m: r.f32()?,
+            x_m: r.f32()?,
+            y_m: r.f32()?,
+            status: r.u16()?,
+            estimates: read_est(r)?,
+        })
+    }
+}
+
+/// Bytes of one Step frame's fields.
+pub const STEP_FIELDS_LEN: usize = 40;
+
+/// Incremental CRC-32 over the encoded fields of consecutive Step frames: the digest of a
+/// [`StepBlockFrame`]. Equal digests mean bit-identical samples (up to a 2⁻³² chance).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StepDigest(crate::crc::Crc32);
+
+impl StepDigest {
+    /// An empty digest.
+    pub const fn new() -> Self {
+        Self(crate::crc::Crc32::new())
+    }
+    /// Adds one sample.
+    pub fn add(&mut self, s: &StepFrame) {
+        let mut b = [0u8; STEP_FIELDS_LEN];
+        let mut w = Writer::new(&mut b);
+        if s.encode_fields(&mut w).is_ok() {
+            self.0.update(&b);
+        }
+    }
+    /// The digest.
+    pub fn finish(self) -> u32 {
+        self.0.finish()
+    }
+}
+
+/// The digest of a run of Step frames.
+pub fn step_digest<'a>(frames: impl IntoIterator<Item = &'a StepFrame>) -> u32 {
+    let mut d = StepDigest::new();
+    for f in frames {
+        d.add(f);
+    }
+    d.finish()
+}
+
+/// Up to [`MAX_FEED`] consecutive samples in compact form (see [`PerSample::Blocks`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepBlockFrame {
+    /// Index of the first sample.
+    pub first_index: u32,
+    /// Number of samples (≤ [`MAX_FEED`]).
+    pub len: u8,
+    /// DAC codes (saturated to i16; the digest has the full value).
+    pub u_codes: [i16; MAX_FEED],
+    /// Status flags.
+    pub status: [u16; MAX_FEED],
+    /// [`step_digest`] of the block's full Step frames.
+    pub digest: u32,
+}
+
+impl Default for StepBlockFrame {
+    fn default() -> Self {
+        Self {
+            first_index: 0,
+            len: 0,
+            u_codes: [0; MAX_FEED],
+            status: [0; MAX_FEED],
+            digest: 0,
+        }
+    }
+}
+
+impl StepBlockFrame {
+    /// True when `frames` (the full samples `first_index ..`, e.g. computed on the host)
+    /// are bit-identical to what this block summarises.
+    pub fn matches(&self, frames: &[StepFrame]) -> bool {
+        let n = self.len as usize;
+        frames.len() == n
+            && frames.iter().enumerate().all(|(i, f)| {
+                f.index == self.first_index.wrapping_add(i as u32)
+                    && self.u_codes.get(i) == Some(&(f.u_code.clamp(-32768, 32767) as i16))
+                    && self.status.get(i) == Some(&f.status)
+            })
+            && step_digest(frames) == self.digest
+    }
+}
+
+/// One finished DIVE tap or SVE pixel.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct RecordFrame {
+    /// Loop sample index at which the record was finished.
+    pub index: u32,
+    /// 1 = DIVE tap, 2 = SVE pixel.
+    pub mode: u8,
+    /// Estimates (c, k, h) in SI.
+    pub estimates: [f32; 3],
+    /// Lateral position in metres.
+    pub x_m: f32,
+    /// Lateral position in metres.
+    pub y_m: f32,
+    /// The core's status flags at the end of the record.
+    pub status: u16,
+}
+
+/// Firmware counters: everything that was lost or refused is counted here, never dropped
+/// silently.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct StatusFrame {
+    /// Loop samples stepped since boot.
+    pub samples: u32,
+    /// Loop interrupts without an ADC sample (replay starved, ADC error).
+    pub starved: u32,
+    /// Telemetry items the loop could not queue (queue full). They also leave a gap in the
+    /// frame sequence numbers.
+    pub telemetry_dropped: u32,
+    /// Host frames that failed COBS/CRC/decoding.
+    pub rx_bad_frames: u32,
+    /// Host frames missing by sequence number.
+    pub rx_lost_frames: u32,
+    /// 0 = stopped, 1 = DIVE, 2 = SVE.
+    pub state: u8,
+    /// Current aggregate estimates (c, k, h).
+    pub estimates: [f32; 3],
+}
+
+/// The result of [`Command::Bench`].
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct BenchFrame {
+    /// Mode measured (0: core stopped, 1 DIVE, 2 SVE).
+    pub mode: u8,
+    /// Loop interrupts in the window.
+    pub steps: u32,
+    /// SysTick ticks (core clock source) elapsed in the window.
+    pub ticks: u32,
+    /// Iterations of the counted idle loop that ran in thread mode in the window.
+    pub idle_iterations: u32,
+    /// Instructions of one idle loop iteration.
+    pub idle_insns_per_iteration: u8,
+    /// Instructions in the window outside the interrupts and the idle loop (fixed).
+    pub fixed_insns: u8,
+}
+
+/// The result of [`Command::Calibrate`].
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct CalibrationFrame {
+    /// Iterations run.
+    pub iterations: u32,
+    /// Instructions executed between the two SysTick reads (counted from the code).
+    pub instructions: u32,
+    /// SysTick ticks elapsed.
+    pub ticks: u32,
+}
+
+/// A firmware → host message.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Telemetry {
+    /// Sent once at boot.
+    Hello {
+        /// [`PROTOCOL_VERSION`] of the firmware.
+        protocol: u16,
+        /// See [`board`].
+        board: u8,
+        /// 0 = stand-in core, 1 = visco-core.
+        core: u8,
+    },
+    /// Answer to a command frame.
+    Ack {
+        /// Sequence number of the command frame.
+        cmd_seq: u32,
+        /// See [`ack`].
+        code: u8,
+    },
+    /// One loop sample.
+    Step(StepFrame),
+    /// Consecutive loop samples, compact.
+    StepBlock(StepBlockFrame),
+    /// One finished tap or pixel.
+    Record(RecordFrame),
+    /// Counters.
+    Status(StatusFrame),
+    /// Loop measurement.
+    Bench(BenchFrame),
+    /// SysTick calibration.
+    Calibration(CalibrationFrame),
+}
+
+mod kind {
+    pub const PING: u8 = 0x01;
+    pub const SET_PARAM: u8 = 0x02;
+    pub const APPLY_CONFIG: u8 = 0x03;
+    pub const START: u8 = 0x04;
+    pub const STOP: u8 = 0x05;
+    pub const SET_SOURCE: u8 = 0x06;
+    pub const FEED_CODES: u8 = 0x07;
+    pub const FEED_METRES: u8 = 0x08;
+    pub const SET_TELEMETRY: u8 = 0x09;
+    pub const REQUEST_STATUS: u8 = 0x0A;
+    pub const BENCH: u8 = 0x0B;
+    pub const CALIBRATE: u8 = 0x0C;
+    pub const EXIT: u8 = 0x0D;
+
+    pub const HELLO: u8 = 0x81;
+    pub const ACK: u8 = 0x82;
+    pub const STEP: u8 = 0x83;
+    pub const RECORD: u8 = 0x84;
+    pub const STATUS: u8 = 0x85;
+    pub const BENCH_RESULT: u8 = 0x86;
+    pub const CALIBRATION: u8 = 0x87;
+    pub const STEP_BLOCK: u8 = 0x88;
+}
+
+fn est(w: &mut Writer<'_>, e: &[f32; 3]) -> Result<(), Short> {
+    for &v in e {
+        w.f32(v)?;
+    }
+    Ok(())
+}
+
+fn read_est(r: &mut Reader<'_>) -> Result<[f32; 3], Short> {
+    Ok([r.f32()?, r.f32()?, r.f32()?])
+}
+
+fn finish<T>(r: &Reader<'_>, v: T) -> Result<T, DecodeError> {
+    if r.remaining() == 0 {
+        Ok(v)
+    } else {
+        Err(DecodeError::Trailing)
+    }
+}
+
+impl Command {
+    /// Writes the message (kind byte and fields).
+    pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), Short> {
+        match *self {
+            Command::Ping { nonce } => {
+                w.u8(kind::PING)?;
+                w.u32(nonce)
+            }
+            Command::SetParam { id, value } => {
+                w.u8(kind::SET_PARAM)?;
+                w.u16(id)?;
+                w.f64(value)
+            }
+            Command::ApplyConfig => w.u8(kind::APPLY_CONFIG),
+            Command::Start(mode) => {
+                w.u8(kind::START)?;
+                w.u8(mode.to_u8())
+            }
+            Command::Stop => w.u8(kind::STOP),
+            Command::SetSource(src) => {
+                w.u8(kind::SET_SOURCE)?;
+                match src {
+                    Source::Timer { period_ticks } => {
+                        w.u8(1)?;
+                        w.u32(period_ticks)
+                    }
+                    Source::Feed => {
+                        w.u8(2)?;
+                        w.u32(0)
+                    }
+                }
+            }
+            Command::Feed(block) => {
+                let n = (block.len as usize).min(MAX_FEED);
+                match &block.samples {
+                    FeedSamples::Codes(c) => {
+                        w.u8(kind::FEED_CODES)?;
+                        w.u32(block.first_index)?;
+                        w.u8(n as u8)?;
+                        for &v in c.iter().take(n) {
+                            w.bytes(&v.to_le_bytes())?;
+                        }
+                    }
+                    FeedSamples::Metres(m) => {
+                        w.u8(kind::FEED_METRES)?;
+                        w.u32(block.first_index)?;
+                        w.u8(n as u8)?;
+                        for &v in m.iter().take(n) {
+                            w.f32(v)?;
+                        }
+                    }
+                }
+                Ok(())
+            }
+            Command::SetTelemetry {
+                per_sample,
+                status_every,
+            } => {
+                w.u8(kind::SET_TELEMETRY)?;
+                w.u8(per_sample.to_u8())?;
+                w.u32(status_every)
+            }
+            Command::RequestStatus => w.u8(kind::REQUEST_STATUS),
+            Command::Bench {
+                mode,
+                steps,
+                period_ticks,
+            } => {
+                w.u8(kind::BENCH)?;
+                w.u8(mode.map_or(0, Mode::to_u8))?;
+                w.u32(steps)?;
+                w.u32(period_ticks)
+            }
+            Command::Calibrate { iterations } => {
+                w.u8(kind::CALIBRATE)?;
+                w.u32(iterations)
+            }
+            Command::Exit { code } => {
+                w.u8(kind::EXIT)?;
+                w.u8(code)
+            }
+        }
+    }
+
+    /// Reads a message; the whole slice must be consumed.
+    pub fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
+        let mut r = Reader::new(bytes);
+        let k = r.u8()?;
+        let cmd = match k {
+            kind::PING => Command::Ping { nonce: r.u32()? },
+            kind::SET_PARAM => Command::SetParam {
+                id: r.u16()?,
+                value: r.f64()?,
+            },
+            kind::APPLY_CONFIG => Command::ApplyConfig,
+            kind::START => Command::Start(Mode::from_u8(r.u8()?)?),
+            kind::STOP => Command::Stop,
+            kind::SET_SOURCE => {
+                let tag = r.u8()?;
+                let period_ticks = r.u32()?;
+                match tag {
+                    1 => Command::SetSource(Source::Timer { period_ticks }),
+                    2 => Command::SetSource(Source::Feed),
+                    _ => return Err(DecodeError::BadValue),
+                }
+            }
+            kind::FEED_CODES | kind::FEED_METRES => {
+                let first_index = r.u32()?;
+                let len = r.u8()?;
+                if len as usize > MAX_FEED {
+                    return Err(DecodeError::BadValue);
+                }
+                let samples = if k == kind::FEED_CODES {
+                    let mut c = [0i16; MAX_FEED];
+                    for v in c.iter_mut().take(len as usize) {
+                        *v = r.i16()?;
+                    }
+                    FeedSamples::Codes(c)
+                } else {
+                    let mut m = [0f32; MAX_FEED];
+                    for v in m.iter_mut().take(len as usize) {
+                        *v = r.f32()?;
+                    }
+                    FeedSamples::Metres(m)
+                };
+                Command::Feed(FeedBlock {
+                    first_index,
+                    len,
+                    samples,
+                })
+            }
+            kind::SET_TELEMETRY => {
+                let per_sample = PerSample::from_u8(r.u8()?)?;
+                Command::SetTelemetry {
+                    per_sample,
+                    status_every: r.u32()?,
+                }
+            }
+            kind::REQUEST_STATUS => Command::RequestStatus,
+            kind::BENCH => Command::Bench {
+                mode: match r.u8()? {
+                    0 => None,
+                    m => Some(Mode::from_u8(m)?),
+                },
+                steps: r.u32()?,
+                period_ticks: r.u32()?,
+            },
+            kind::CALIBRATE => Command::Calibrate {
+                iterations: r.u32()?,
+            },
+            kind::EXIT => Command::Exit { code: r.u8()? },
+            other => return Err(DecodeError::UnknownKind(other)),
+        };
+        finish(&r, cmd)
+    }
+}
+
+impl Telemetry {
+    /// Writes the message (kind byte and fields).
+    pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), Short> {
+        match self {
+            Telemetry::Hello {
+                protocol,
+                board,
+                core,
+            } => {
+                w.u8(kind::HELLO)?;
+                w.u16(*protocol)?;
+                w.u8(*board)?;
+                w.u8(*core)
+            }
+            Telemetry::Ack { cmd_seq, code } => {
+                w.u8(kind::ACK)?;
+                w.u32(*cmd_seq)?;
+                w.u8(*code)
+            }
+            Telemetry::Step(s) => {
+                w.u8(kind::STEP)?;
+                s.encode_fields(w)
+            }
+            Telemetry::StepBlock(b) => {
+                w.u8(kind::STEP_BLOCK)?;
+                w.u32(b.first_index)?;
+                let n = (b.len as usize).min(MAX_FEED);
+                w.u8(n as u8)?;
+                for (&c, &st) in b.u_codes.iter().zip(&b.status).take(n) {
+                    w.bytes(&c.to_le_bytes())?;
+                    w.u16(st)?;
+                }
+                w.u32(b.digest)
+            }
+            Telemetry::Record(rf) => {
+                w.u8(kind::RECORD)?;
+                w.u32(rf.index)?;
+                w.u8(rf.mode)?;
+                est(w, &rf.estimates)?;
+                w.f32(rf.x_m)?;
+                w.f32(rf.y_m)?;
+                w.u16(rf.status)
+            }
+            Telemetry::Status(s) => {
+                w.u8(kind::STATUS)?;
+                w.u32(s.samples)?;
+                w.u32(s.starved)?;
+                w.u32(s.telemetry_dropped)?;
+                w.u32(s.rx_bad_frames)?;
+                w.u32(s.rx_lost_frames)?;
+                w.u8(s.state)?;
+                est(w, &s.estimates)
+            }
+            Telemetry::Bench(b) => {
+                w.u8(kind::BENCH_RESULT)?;
+                w.u8(b.mode)?;
+                w.u32(b.steps)?;
+                w.u32(b.ticks)?;
+                w.u32(b.idle_iterations)?;
+                w.u8(b.idle_insns_per_iteration)?;
+                w.u8(b.fixed_insns)
+            }
+            Telemetry::Calibration(c) => {
+                w.u8(kind::CALIBRATION)?;
+                w.u32(c.iterations)?;
+                w.u32(c.instructions)?;
+                w.u32(c.ticks)
+            }
+        }
+    }
+
+    /// Reads a message; the whole slice must be consumed.
+    pub fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
+        let mut r = Reader::new(bytes);
+        let t = match r.u8()? {
+            kind::HELLO => Telemetry::Hello {
+                protocol: r.u16()?,
+                board: r.u8()?,
+                core: r.u8()?,
+            },
+            kind::ACK => Telemetry::Ack {
+                cmd_seq: r.u32()?,
+                code: r.u8()?,
+            },
+            kind::STEP => Telemetry::Step(StepFrame::decode_fields(&mut r)?),
+            kind::STEP_BLOCK => {
+                let mut b = StepBlockFrame {
+                    first_index: r.u32()?,
+                    len: r.u8()?,
+                    ..Default::default()
+                };
+                if b.len as usize > MAX_FEED {
+                    return Err(DecodeError::BadValue);
+                }
+                for (c, st) in b
+                    .u_codes
+                    .iter_mut()
+                    .zip(b.status.iter_mut())
+                    .take(b.len as usize)
+                {
+                    *c = r.i16()?;
+                    *st = r.u16()?;
+                }
+                b.digest = r.u32()?;
+                Telemetry::StepBlock(b)
+            }
+            kind::RECORD => Telemetry::Record(RecordFrame {
+                index: r.u32()?,
+                mode: r.u8()?,
+                estimates: read_est(&mut r)?,
+                x_m: r.f32()?,
+                y_m: r.f32()?,
+                status: r.u16()?,
+            }),
+            kind::STATUS => Telemetry::Status(StatusFrame {
+                samples: r.u32()?,
+                starved: r.u32()?,
+                telemetry_dropped: r.u32()?,
+                rx_bad_frames: r.u32()?,
+                rx_lost_frames: r.u32()?,
+                state: r.u8()?,
+                estimates: read_est(&mut r)?,
+            }),
+            kind::BENCH_RESULT => Telemetry::Bench(BenchFrame {
+                mode: r.u8()?,
+                steps: r.u32()?,
+                ticks: r.u32()?,
+                idle_iterations: r.u32()?,
+                idle_insns_per_iteration: r.u8()?,
+                fixed_insns: r.u8()?,
+            }),
+            kind::CALIBRATION => Telemetry::Calibration(CalibrationFrame {
+                iterations: r.u32()?,
+                instructions: r.u32()?,
+                ticks: r.u32()?,
+            }),
+            other => return Err(DecodeError::UnknownKind(other)),
+        };
+        finish(&r, t)
+    }
+}

@@ -1,0 +1,435 @@
+//! Board-independent firmware: the loop interrupt's state, the main loop that talks to the
+//! host, and the panic handler.
+//!
+//! Ownership: the loop state (`LOOP`) belongs to the loop interrupt. The main loop touches
+//! it only through [`with_loop`], which masks the loop interrupt for the duration (a few
+//! hundred cycles, only on configuration commands, never per sample). Per-sample data moves
+//! through lock-free SPSC queues: telemetry loop → main, core commands main → loop, and on
+//! QEMU replay samples main → loop.
+
+use crate::board;
+use core::cell::UnsafeCell;
+use core::sync::atomic::Ordering;
+use visco_firmware::core_glue::{self, CoreCommand, LoopCore, StagedConfig};
+use visco_firmware::loop_body::{CommandSlot, Counters, Item, TELEMETRY_DEPTH};
+use visco_firmware::scale::Scale;
+use visco_firmware::spsc::{Consumer, Spsc};
+use visco_protocol::{
+    ack, frame, param, Command, FrameDecoder, PerSample, SeqTracker, StatusFrame, StepBlockFrame,
+    StepDigest, StepFrame, Telemetry, MAX_FEED, MAX_WIRE, PROTOCOL_VERSION,
+};
+
+/// The loop state, owned by the loop interrupt (see the module comment).
+pub struct IsrCell<T>(UnsafeCell<Option<T>>);
+
+// SAFETY: accessed only by the loop interrupt, or by thread mode while that interrupt is
+// masked (`with_loop`), so never from two contexts at once.
+unsafe impl<T: Send> Sync for IsrCell<T> {}
+
+impl<T> IsrCell<T> {
+    const fn new() -> Self {
+        Self(UnsafeCell::new(None))
+    }
+    /// # Safety
+    /// Only from the loop interrupt, or with the loop interrupt masked.
+    // A `&mut` from `&self` is the point: exclusivity comes from the interrupt masking
+    // contract above, which the type system cannot see.
+    #[allow(clippy::mut_from_ref)]
+    #[inline(always)]
+    pub unsafe fn get(&self) -> Option<&mut T> {
+        // SAFETY: exclusive access per the caller's contract.
+        unsafe { (*self.0.get()).as_mut() }
+    }
+    /// # Safety
+    /// Only with the loop interrupt masked.
+    unsafe fn set(&self, v: T) {
+        // SAFETY: exclusive access per the caller's contract.
+        unsafe { *self.0.get() = Some(v) };
+    }
+}
+
+pub static LOOP: IsrCell<board::Loop> = IsrCell::new();
+static TELEMETRY: Spsc<Item, TELEMETRY_DEPTH> = Spsc::new();
+static COMMANDS: CommandSlot = CommandSlot::new();
+pub static COUNTERS: Counters = Counters::new();
+
+/// The loop interrupt body: every board's loop interrupt handler calls this after
+/// acknowledging its interrupt source.
+#[inline(always)]
+pub fn loop_interrupt() {
+    #[cfg(feature = "panic-canary")]
+    if COUNTERS.samples.load(Ordering::Relaxed) == 0xDEAD_BEEF {
+        panic!("canary");
+    }
+    // SAFETY: called from the loop interrupt only.
+    if let Some(l) = unsafe { LOOP.get() } {
+        l.on_sample();
+    }
+}
+
+/// Runs `f` on the loop state with the loop interrupt masked.
+pub fn with_loop<R>(f: impl FnOnce(&mut board::Loop) -> R) -> Option<R> {
+    board::mask_loop();
+    // SAFETY: the loop interrupt is masked, and thread mode cannot preempt it.
+    let r = unsafe { LOOP.get() }.map(f);
+    board::unmask_loop();
+    r
+}
+
+/// The byte link to the host (UART).
+pub trait Link {
+    /// A received byte, if one is waiting.
+    fn try_read(&mut self) -> Option<u8>;
+    /// Sends bytes (blocks the main loop, never the loop interrupt).
+    fn write_all(&mut self, bytes: &[u8]);
+}
+
+/// The host link's transmit side. Frame sequence numbers are taken here, in send order, so
+/// they are strictly increasing on the wire; telemetry the loop could not queue is added to
+/// the sequence as a gap of the same size, so the host counts it as lost.
+pub struct Tx<L: Link> {
+    pub link: L,
+    buf: [u8; MAX_WIRE],
+    seq: u32,
+    dropped_seen: u32,
+    /// Per-sample outputs as compact blocks.
+    pub blocks: bool,
+    block: StepBlockFrame,
+    digest: StepDigest,
+}
+
+impl<L: Link> Tx<L> {
+    fn new(link: L) -> Self {
+        Self {
+            link,
+            buf: [0; MAX_WIRE],
+            seq: 0,
+            dropped_seen: 0,
+            blocks: false,
+            block: StepBlockFrame::default(),
+            digest: StepDigest::new(),
+        }
+    }
+
+    pub fn send(&mut self, t: &Telemetry) {
+        let dropped = COUNTERS.telemetry_dropped.load(Ordering::Relaxed);
+        self.seq = self
+            .seq
+            .wrapping_add(dropped.wrapping_sub(self.dropped_seen));
+        self.dropped_seen = dropped;
+        let seq = self.seq;
+        self.seq = self.seq.wrapping_add(1);
+        match frame::encode(seq, t, &mut self.buf) {
+            Ok(n) => self.link.write_all(self.buf.get(..n).unwrap_or(&[])),
+            // Cannot happen for the fixed-size messages; the gap it leaves reports it.
+            Err(_) => defmt::error!("telemetry frame too long"),
+        }
+    }
+
+    /// Sends everything the loop queued.
+    fn drain(&mut self, rx: &mut Consumer<'static, Item, TELEMETRY_DEPTH>) {
+        while let Some(item) = rx.pop() {
+            match item {
+                Item::Step(s) if self.blocks => self.add_to_block(&s),
+                Item::Step(s) => self.send(&Telemetry::Step(s)),
+                Item::Record(r) => self.send(&Telemetry::Record(r)),
+            }
+        }
+    }
+
+    fn add_to_block(&mut self, s: &StepFrame) {
+        let len = self.block.len as u32;
+        if len > 0 && s.index != self.block.first_index.wrapping_add(len) {
+            self.flush_block(); // a dropped sample: start a new block
+        }
+        if self.block.len == 0 {
+            self.block.first_index = s.index;
+            self.digest = StepDigest::new();
+        }
+        let i = self.block.len as usize;
+        if let (Some(c), Some(st)) = (self.block.u_codes.get_mut(i), self.block.status.get_mut(i)) {
+            *c = s.u_code.clamp(-32768, 32767) as i16;
+            *st = s.status;
+            self.digest.add(s);
+            self.block.len += 1;
+        }
+        if self.block.len as usize >= MAX_FEED {
+            self.flush_block();
+        }
+    }
+
+    /// Sends the partial block, if any.
+    fn flush_block(&mut self) {
+        if self.block.len > 0 {
+            self.block.digest = self.digest.finish();
+            let b = self.block;
+            self.send(&Telemetry::StepBlock(b));
+            self.block.len = 0;
+        }
+    }
+}
+
+/// Board-level configuration staged by `SetParam`.
+struct BoardScales {
+    adc: Scale,
+    dac: Scale,
+    lateral: Scale,
+}
+
+pub fn run() -> ! {
+    let mut b = board::init();
+    defmt::info!(
+        "visco firmware: board {=str}, core {=u8}, protocol {=u16}",
+        board::NAME,
+        core_glue::CORE_ID,
+        PROTOCOL_VERSION
+    );
+    let Some((tel_tx, mut tel_rx)) = TELEMETRY.split() else {
+        board::fatal(4)
+    };
+    // Defaults: 1 nm per code everywhere, until the host configures the board.
+    let (Some(unit), Some(lat)) = (Scale::new_16bit(1e-9), Scale::new_16bit(1e-9)) else {
+        board::fatal(5)
+    };
+    let mut scales = BoardScales {
+        adc: unit,
+        dac: unit,
+        lateral: lat,
+    };
+    let mut staged = StagedConfig::new();
+    let core = core_glue::build_core(&staged, &scales.dac).ok();
+    let state = board::make_loop(
+        &mut b,
+        scales.adc,
+        scales.lateral,
+        core,
+        tel_tx,
+        &COMMANDS,
+        &COUNTERS,
+    );
+    board::mask_loop();
+    // SAFETY: the loop interrupt is masked.
+    unsafe { LOOP.set(state) };
+    board::unmask_loop();
+
+    let mut tx = Tx::new(board::take_link(&mut b));
+    tx.send(&Telemetry::Hello {
+        protocol: PROTOCOL_VERSION,
+        board: board::BOARD_ID,
+        core: core_glue::CORE_ID,
+    });
+
+    let mut rx = FrameDecoder::new();
+    let mut rx_seq = SeqTracker::starting_at(0);
+    let mut rx_bad: u32 = 0;
+    let mut status_every: u32 = 0;
+    let mut next_status: u32 = 0;
+    loop {
+        tx.drain(&mut tel_rx);
+        if !board::samples_pending(&b) {
+            // The sample stream paused (end of a replay, or a slow host): send what we have.
+            tx.flush_block();
+        }
+        board::poll(&mut b, TELEMETRY_DEPTH - tel_rx.len());
+
+        if status_every != 0 {
+            let samples = COUNTERS.samples.load(Ordering::Relaxed);
+            if samples.wrapping_sub(next_status) as i32 >= 0 {
+                next_status = samples.wrapping_add(status_every);
+                let s = status(rx_bad, &rx_seq);
+                tx.send(&Telemetry::Status(s));
+            }
+        }
+
+        // Host bytes, as long as a whole replay block would still fit.
+        let mut received = false;
+        while board::can_accept_command(&b) {
+            let Some(byte) = tx.link.try_read() else {
+                break;
+            };
+            received = true;
+            let Some(res) = rx.push::<Command>(byte) else {
+                continue;
+            };
+            let (seq, cmd) = match res {
+                Ok(x) => x,
+                Err(_) => {
+                    rx_bad = rx_bad.wrapping_add(1);
+                    continue;
+                }
+            };
+            rx_seq.observe(seq);
+            // Whatever the loop queued before this command goes out first, so the host sees
+            // telemetry and acks in the order they happened.
+            if !matches!(cmd, Command::Feed(_)) {
+                tx.drain(&mut tel_rx);
+                tx.flush_block();
+            }
+            let code = match cmd {
+                Command::Ping { .. } => ack::OK,
+                Command::SetParam { id, value } => set_param(&mut scales, &mut staged, id, value),
+                Command::ApplyConfig => apply_config(&scales, &staged),
+                Command::Start(mode) => {
+                    if with_loop(|l| l.core.is_some()) == Some(true) {
+                        push_cmd(CoreCommand::Start(mode))
+                    } else {
+                        ack::INVALID // no configuration applied yet
+                    }
+                }
+                Command::Stop => push_cmd(CoreCommand::Stop),
+                Command::SetSource(src) => board::set_source(&mut b, src),
+                Command::Feed(block) => {
+                    let code = board::feed(&mut b, &block);
+                    if code == ack::OK {
+                        // Replay blocks are not acknowledged one by one: the Step frames are
+                        // the answer, and an ack per block would cost link bandwidth.
+                        continue;
+                    }
+                    code
+                }
+                Command::SetTelemetry {
+                    per_sample,
+                    status_every: every,
+                } => {
+                    status_every = every;
+                    next_status = COUNTERS.samples.load(Ordering::Relaxed);
+                    tx.blocks = per_sample == PerSample::Blocks;
+                    with_loop(|l| l.per_sample = per_sample != PerSample::Off);
+                    ack::OK
+                }
+                Command::RequestStatus => {
+                    let s = status(rx_bad, &rx_seq);
+                    tx.send(&Telemetry::Status(s));
+                    ack::OK
+                }
+                Command::Bench {
+                    mode,
+                    steps,
+                    period_ticks,
+                } => match board::bench(&mut b, mode, steps, period_ticks) {
+                    Some(frame) => {
+                        tx.drain(&mut tel_rx);
+                        tx.send(&Telemetry::Bench(frame));
+                        ack::OK
+                    }
+                    None => ack::UNSUPPORTED,
+                },
+                Command::Calibrate { iterations } => match board::calibrate(iterations) {
+                    Some(frame) => {
+                        tx.send(&Telemetry::Calibration(frame));
+                        ack::OK
+                    }
+                    None => ack::UNSUPPORTED,
+                },
+                Command::Exit { code } => {
+                    tx.drain(&mut tel_rx);
+                    let s = status(rx_bad, &rx_seq);
+                    tx.send(&Telemetry::Status(s));
+                    tx.send(&Telemetry::Ack {
+                        cmd_seq: seq,
+                        code: ack::OK,
+                    });
+                    defmt::info!("exit {=u8} after {=u32} samples", code, s.samples);
+                    board::exit(code)
+                }
+            };
+            tx.send(&Telemetry::Ack { cmd_seq: seq, code });
+        }
+        if !received && tel_rx.is_empty() {
+            // Nothing to do until an interrupt: a host byte, a loop sample, a timer. Under
+            // QEMU this also leaves the emulator's I/O thread alone instead of polling the
+            // UART, which is what makes the link fast.
+            board::idle(&b);
+        }
+    }
+}
+
+fn push_cmd(c: CoreCommand) -> u8 {
+    COMMANDS.post(c);
+    ack::OK
+}
+
+fn set_param(scales: &mut BoardScales, staged: &mut StagedConfig, id: u16, value: f64) -> u8 {
+    let scale = || Scale::new_16bit(value as f32);
+    let slot = match id {
+        param::ADC_METRES_PER_CODE => &mut scales.adc,
+        param::DAC_METRES_PER_CODE => &mut scales.dac,
+        param::LATERAL_METRES_PER_CODE => &mut scales.lateral,
+        _ => {
+            return if staged.stage(id, value) {
+                ack::OK
+            } else {
+                ack::INVALID
+            }
+        }
+    };
+    match scale() {
+        Some(s) => {
+            *slot = s;
+            ack::OK
+        }
+        None => ack::INVALID,
+    }
+}
+
+fn apply_config(scales: &BoardScales, staged: &StagedConfig) -> u8 {
+    let running = with_loop(|l| l.core.as_ref().and_then(|c| c.mode()).is_some());
+    if running != Some(false) {
+        return ack::BUSY;
+    }
+    // Built here, in thread mode; the loop only receives the finished core.
+    match core_glue::build_core(staged, &scales.dac) {
+        Ok(core) => {
+            let (adc, lateral) = (scales.adc, scales.lateral);
+            with_loop(move |l| {
+                l.core = Some(core);
+                board::set_scales(l, adc, lateral);
+            });
+            ack::OK
+        }
+        Err(_) => ack::INVALID,
+    }
+}
+
+fn status(rx_bad: u32, rx_seq: &SeqTracker) -> StatusFrame {
+    let (state, estimates) = with_loop(|l| match l.core.as_ref() {
+        Some(c) => (
+            match c.mode() {
+                None => 0,
+                Some(core_glue::Mode::Dive) => 1,
+                Some(core_glue::Mode::Sve) => 2,
+            },
+            c.estimates(),
+        ),
+        None => (0, [0.0; 3]),
+    })
+    .unwrap_or((0, [0.0; 3]));
+    StatusFrame {
+        samples: COUNTERS.samples.load(Ordering::Relaxed),
+        starved: COUNTERS.starved.load(Ordering::Relaxed),
+        telemetry_dropped: COUNTERS.telemetry_dropped.load(Ordering::Relaxed),
+        rx_bad_frames: rx_bad,
+        rx_lost_frames: rx_seq.lost().min(u32::MAX as u64) as u32,
+        state,
+        estimates,
+    }
+}
+
+#[cfg(not(feature = "panic-never"))]
+#[panic_handler]
+fn panic(_info: &core::panic::PanicInfo) -> ! {
+    defmt::error!("panic");
+    board::fatal(3)
+}
+
+/// With `panic-never`, any panic path that survives optimisation references this undefined
+/// symbol and the link fails, naming it: the proof that the image cannot panic.
+#[cfg(feature = "panic-never")]
+#[panic_handler]
+fn panic(_info: &core::panic::PanicInfo) -> ! {
+    unsafe extern "Rust" {
+        fn visco_firmware_has_a_reachable_panic_path() -> !;
+    }
+    // SAFETY: never executed; the symbol does not exist, so a reachable call fails the link.
+    unsafe { visco_firmware_has_a_reachable_panic_path() }
+}

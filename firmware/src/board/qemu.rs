@@ -1,0 +1,733 @@
+//! The QEMU board: `qemu-system-arm -machine mps2-an500` (Cortex-M7 at a nominal 25 MHz).
+//!
+//! - Loop interrupt: CMSDK APB TIMER0 (IRQ 8), clocked by the 25 MHz system clock; in replay
+//!   ("feed") mode the timer is off and the main loop pends IRQ 8 once per fed sample, so
+//!   the very same handler steps exactly once per sample.
+//! - ADC: the AD4000 driver over a virtual SPI bus whose "conversion result" is a replay
+//!   sample sent by the host (or, in timer mode, a synthetic triangle wave).
+//! - DACs: the AD5541 driver over virtual SPI buses (U, X, Y); the U word is reported back
+//!   to the host in the Step frames.
+//! - Host link: CMSDK UART0 (QEMU `-serial`), polled from the main loop. QEMU moves UART
+//!   bytes as fast as the emulation runs (no baud-rate pacing).
+//! - Log: defmt over semihosting (QEMU's stdout with `-semihosting-config target=native`).
+//! - Measurement: SysTick on the core clock (QEMU: the 25 MHz system clock), read around
+//!   many loop interrupts; see `bench` and `calibrate`.
+
+use crate::app::{self, Link};
+use core::convert::Infallible;
+use core::ptr::{read_volatile, write_volatile};
+use core::sync::atomic::Ordering;
+use cortex_m::peripheral::{syst::SystClkSource, NVIC};
+use embedded_hal::delay::DelayNs;
+use embedded_hal::digital::{ErrorType as PinErrorType, OutputPin};
+use embedded_hal::spi::{ErrorType as SpiErrorType, SpiBus};
+use visco_firmware::core_glue::{ActiveCore, CoreCommand, LoopCore, Mode};
+use visco_firmware::drivers::ad4000::{self, part, Ad4000, CFG_TURBO};
+use visco_firmware::drivers::ad5541::Ad5541;
+use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, TELEMETRY_DEPTH};
+use visco_firmware::scale::Scale;
+use visco_firmware::spi_device::CsDevice;
+use visco_firmware::spsc::{Consumer, Producer, Spsc};
+use visco_protocol::{
+    ack, board, BenchFrame, CalibrationFrame, FeedBlock, FeedSamples, Source, MAX_FEED,
+};
+
+#[path = "semihosting_log.rs"]
+mod semihosting_log;
+
+pub const NAME: &str = "qemu-mps2-an500";
+pub const BOARD_ID: u8 = board::QEMU_MPS2_AN500;
+
+// CMSDK APB peripherals of the AN385/AN386/AN500 map.
+const TIMER0_BASE: usize = 0x4000_0000;
+const TIMER1_BASE: usize = 0x4000_1000;
+const UART0: usize = 0x4000_4000;
+const TIMER_CTRL: usize = 0x00;
+const TIMER_VALUE: usize = 0x04;
+const TIMER_RELOAD: usize = 0x08;
+const TIMER_INTCLEAR: usize = 0x0C;
+const TIMER_CTRL_EN: u32 = 1 << 0;
+const TIMER_CTRL_IRQEN: u32 = 1 << 3;
+const UART_DATA: usize = 0x00;
+const UART_STATE: usize = 0x04;
+const UART_CTRL: usize = 0x08;
+const UART_BAUDDIV: usize = 0x10;
+const UART_INTCLEAR: usize = 0x0C;
+const UART_STATE_TXFULL: u32 = 1 << 0;
+const UART_STATE_RXFULL: u32 = 1 << 1;
+const UART_CTRL_TX_EN: u32 = 1 << 0;
+const UART_CTRL_RX_EN: u32 = 1 << 1;
+const UART_CTRL_RX_INT_EN: u32 = 1 << 3;
+const UART_INT_RX: u32 = 1 << 1;
+/// SysTick current value register.
+const SYST_CVR: usize = 0xE000_E018;
+
+#[inline(always)]
+fn reg(base: usize, off: usize) -> *mut u32 {
+    (base + off) as *mut u32
+}
+
+/// The loop interrupt's IRQ number.
+#[derive(Clone, Copy)]
+struct LoopIrq;
+// SAFETY: 8 is TIMER0's IRQ on mps2-an500 and below the 32 IRQs QEMU's model has.
+unsafe impl cortex_m::interrupt::InterruptNumber for LoopIrq {
+    fn number(self) -> u16 {
+        8
+    }
+}
+
+// ---- Vector table (cortex-m-rt `device` feature): 32 external interrupts. ----
+
+#[repr(C)]
+pub union Vector {
+    handler: unsafe extern "C" fn(),
+    reserved: usize,
+}
+
+unsafe extern "C" {
+    fn UART0_TX();
+    fn TIMER1();
+}
+
+#[unsafe(link_section = ".vector_table.interrupts")]
+#[unsafe(no_mangle)]
+pub static __INTERRUPTS: [Vector; 32] = {
+    const R: Vector = Vector { reserved: 0 };
+    let mut v = [R; 32];
+    v[0] = Vector { handler: UART0_RX };
+    v[1] = Vector { handler: UART0_TX };
+    v[8] = Vector { handler: TIMER0 };
+    v[9] = Vector { handler: TIMER1 };
+    v
+};
+
+/// UART0 receive interrupt: only wakes the main loop from `wfi` (it reads the byte).
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn UART0_RX() {
+    // SAFETY: UART0 interrupt-clear register.
+    unsafe { write_volatile(reg(UART0, UART_INTCLEAR), UART_INT_RX) };
+}
+
+/// The UART's IRQ number.
+#[derive(Clone, Copy)]
+struct UartIrq;
+// SAFETY: 0 is UART0 RX on mps2-an500.
+unsafe impl cortex_m::interrupt::InterruptNumber for UartIrq {
+    fn number(self) -> u16 {
+        0
+    }
+}
+
+/// The loop interrupt: acknowledge the timer, then one sample.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn TIMER0() {
+    // SAFETY: TIMER0's interrupt-clear register; writing 1 clears a timer interrupt and is
+    // harmless when the interrupt was pended by software (replay).
+    unsafe { write_volatile(reg(TIMER0_BASE, TIMER_INTCLEAR), 1) };
+    app::loop_interrupt();
+}
+
+// ---- Virtual SPI converters. ----
+
+/// An SPI bus whose MISO shifts out the virtual ADC's conversion result (left-aligned in
+/// 32 bits), MSB first, once per transfer call: the ADC's output shift register.
+pub struct VirtualAdcBus {
+    conversion: u32,
+}
+impl SpiErrorType for VirtualAdcBus {
+    type Error = Infallible;
+}
+impl VirtualAdcBus {
+    #[inline(always)]
+    fn shift_out(&self, words: &mut [u8]) {
+        let mut v = self.conversion;
+        for w in words {
+            *w = (v >> 24) as u8;
+            v <<= 8;
+        }
+    }
+}
+impl SpiBus<u8> for VirtualAdcBus {
+    fn read(&mut self, words: &mut [u8]) -> Result<(), Infallible> {
+        self.shift_out(words);
+        Ok(())
+    }
+    fn write(&mut self, _: &[u8]) -> Result<(), Infallible> {
+        Ok(())
+    }
+    #[inline(always)]
+    fn transfer(&mut self, read: &mut [u8], _: &[u8]) -> Result<(), Infallible> {
+        self.shift_out(read);
+        Ok(())
+    }
+    fn transfer_in_place(&mut self, words: &mut [u8]) -> Result<(), Infallible> {
+        self.shift_out(words);
+        Ok(())
+    }
+    fn flush(&mut self) -> Result<(), Infallible> {
+        Ok(())
+    }
+}
+
+/// An SPI bus that accepts writes (the DACs' outputs are reported through telemetry).
+pub struct VirtualDacBus;
+impl SpiErrorType for VirtualDacBus {
+    type Error = Infallible;
+}
+impl SpiBus<u8> for VirtualDacBus {
+    fn read(&mut self, words: &mut [u8]) -> Result<(), Infallible> {
+        words.fill(0);
+        Ok(())
+    }
+    #[inline(always)]
+    fn write(&mut self, _: &[u8]) -> Result<(), Infallible> {
+        Ok(())
+    }
+    fn transfer(&mut self, read: &mut [u8], _: &[u8]) -> Result<(), Infallible> {
+        read.fill(0);
+        Ok(())
+    }
+    fn transfer_in_place(&mut self, _: &mut [u8]) -> Result<(), Infallible> {
+        Ok(())
+    }
+    fn flush(&mut self) -> Result<(), Infallible> {
+        Ok(())
+    }
+}
+
+/// A chip-select line that goes nowhere.
+pub struct VirtualPin;
+impl PinErrorType for VirtualPin {
+    type Error = Infallible;
+}
+impl OutputPin for VirtualPin {
+    #[inline(always)]
+    fn set_low(&mut self) -> Result<(), Infallible> {
+        Ok(())
+    }
+    #[inline(always)]
+    fn set_high(&mut self) -> Result<(), Infallible> {
+        Ok(())
+    }
+}
+
+/// Delays are meaningless for the virtual converters.
+pub struct NoWait;
+impl DelayNs for NoWait {
+    #[inline(always)]
+    fn delay_ns(&mut self, _: u32) {}
+}
+
+type AdcDev = CsDevice<VirtualAdcBus, VirtualPin, NoWait>;
+type DacDev = CsDevice<VirtualDacBus, VirtualPin, NoWait>;
+
+/// One replay sample.
+#[derive(Clone, Copy, Debug)]
+pub enum FeedSample {
+    /// An ADC code (signed, relative to mid-scale).
+    Code(i16),
+    /// Deflection in metres, bypassing the ADC.
+    Metres(f32),
+}
+
+const FEED_DEPTH: usize = 256;
+static FEED: Spsc<FeedSample, FEED_DEPTH> = Spsc::new();
+
+/// Where the virtual ADC's conversions come from.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum AdcSource {
+    Synthetic,
+    Feed,
+}
+
+pub struct QemuAdc {
+    dev: Ad4000<AdcDev, part::Ad4000>,
+    scale: Scale,
+    source: AdcSource,
+    phase: u32,
+    feed: Consumer<'static, FeedSample, FEED_DEPTH>,
+}
+
+impl loop_body::Adc for QemuAdc {
+    #[inline(always)]
+    fn sample(&mut self) -> Option<f32> {
+        let code = match self.source {
+            AdcSource::Synthetic => {
+                // A triangle-ish wave of ±8192 codes: deterministic and cheap.
+                self.phase = self.phase.wrapping_add(7);
+                (self.phase & 0x3FFF) as i32 - 8192
+            }
+            AdcSource::Feed => match self.feed.pop()? {
+                FeedSample::Code(c) => c as i32,
+                FeedSample::Metres(m) => return Some(m),
+            },
+        };
+        // The "conversion" lands in the ADC's output register, then the driver reads it over
+        // SPI exactly as on the board.
+        let raw = ad4000::encode(code, 16, ad4000::Coding::StraightBinary);
+        self.dev.device_mut().bus_mut().conversion = raw << 16;
+        match self.dev.read_code() {
+            Ok(c) => Some(self.scale.to_metres(c)),
+            Err(e) => match e {},
+        }
+    }
+}
+
+pub struct QemuU {
+    dac: Ad5541<DacDev>,
+}
+impl loop_body::UOutput for QemuU {
+    #[inline(always)]
+    fn write(&mut self, code: i32) -> u16 {
+        match self.dac.write_code(code) {
+            Ok(w) => w,
+            Err(e) => match e {},
+        }
+    }
+}
+
+pub struct QemuXy {
+    x: Ad5541<DacDev>,
+    y: Ad5541<DacDev>,
+    scale: Scale,
+}
+impl loop_body::XyOutput for QemuXy {
+    fn write(&mut self, x_m: f32, y_m: f32) {
+        let (Ok(_) | Err(_)) = self.x.write_code(self.scale.to_code(x_m));
+        let (Ok(_) | Err(_)) = self.y.write_code(self.scale.to_code(y_m));
+    }
+}
+
+pub type Loop = LoopState<QemuAdc, QemuU, QemuXy, ActiveCore>;
+
+// ---- UART0 host link. ----
+
+pub struct Uart;
+impl Uart {
+    fn init() -> Self {
+        // SAFETY: UART0 registers; BAUDDIV ≥ 16 is required by the CMSDK UART model, and the
+        // rate is irrelevant under QEMU (no pacing).
+        unsafe {
+            write_volatile(reg(UART0, UART_BAUDDIV), 16);
+            write_volatile(
+                reg(UART0, UART_CTRL),
+                UART_CTRL_TX_EN | UART_CTRL_RX_EN | UART_CTRL_RX_INT_EN,
+            );
+        }
+        Uart
+    }
+}
+impl Link for Uart {
+    #[inline]
+    fn try_read(&mut self) -> Option<u8> {
+        // SAFETY: UART0 registers.
+        unsafe {
+            if read_volatile(reg(UART0, UART_STATE)) & UART_STATE_RXFULL != 0 {
+                Some(read_volatile(reg(UART0, UART_DATA)) as u8)
+            } else {
+                None
+            }
+        }
+    }
+    fn write_all(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            // SAFETY: UART0 registers.
+            unsafe {
+                while read_volatile(reg(UART0, UART_STATE)) & UART_STATE_TXFULL != 0 {}
+                write_volatile(reg(UART0, UART_DATA), b as u32);
+            }
+        }
+    }
+}
+
+// ---- The board. ----
+
+pub struct Board {
+    link: Option<Uart>,
+    feed_tx: Producer<'static, FeedSample, FEED_DEPTH>,
+    feed_rx: Option<Consumer<'static, FeedSample, FEED_DEPTH>>,
+    feeding: bool,
+    next_feed_index: u32,
+}
+
+pub fn init() -> Board {
+    let Some(mut cp) = cortex_m::Peripherals::take() else {
+        fatal(6)
+    };
+    // SysTick free-running on the core clock, no interrupt: the instruction-count clock.
+    cp.SYST.set_clock_source(SystClkSource::Core);
+    cp.SYST.set_reload(0x00FF_FFFF);
+    cp.SYST.clear_current();
+    cp.SYST.enable_counter();
+    // TIMER1 free-running (32 bits, 25 MHz) to detect a SysTick wrap in long windows.
+    // SAFETY: TIMER1 registers; no interrupt enabled.
+    unsafe {
+        write_volatile(reg(TIMER1_BASE, TIMER_RELOAD), u32::MAX);
+        write_volatile(reg(TIMER1_BASE, TIMER_VALUE), u32::MAX);
+        write_volatile(reg(TIMER1_BASE, TIMER_CTRL), TIMER_CTRL_EN);
+    }
+    let Some((feed_tx, feed_rx)) = FEED.split() else {
+        fatal(7)
+    };
+    let link = Uart::init();
+    // The loop interrupt preempts everything; the UART interrupt only wakes the main loop.
+    // SAFETY: priorities are set before either interrupt is unmasked.
+    unsafe {
+        cp.NVIC.set_priority(LoopIrq, 0x00);
+        cp.NVIC.set_priority(UartIrq, 0x80);
+        NVIC::unmask(UartIrq);
+    }
+    Board {
+        link: Some(link),
+        feed_tx,
+        feed_rx: Some(feed_rx),
+        feeding: false,
+        next_feed_index: 0,
+    }
+}
+
+fn device<B: SpiBus<u8>>(bus: B) -> CsDevice<B, VirtualPin, NoWait> {
+    match CsDevice::new(bus, VirtualPin, NoWait) {
+        Ok(d) => d,
+        Err(e) => match e {},
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+pub fn make_loop(
+    b: &mut Board,
+    adc_scale: Scale,
+    lateral: Scale,
+    core: Option<ActiveCore>,
+    tel: Producer<'static, Item, TELEMETRY_DEPTH>,
+    cmds: &'static CommandSlot,
+    counters: &'static Counters,
+) -> Loop {
+    let Some(feed) = b.feed_rx.take() else {
+        fatal(8)
+    };
+    let mut adc = Ad4000::new(device(VirtualAdcBus { conversion: 0 }), CFG_TURBO);
+    let (Ok(()) | Err(_)) = adc.configure();
+    let (Ok(()) | Err(_)) = adc.prime();
+    LoopState::new(
+        QemuAdc {
+            dev: adc,
+            scale: adc_scale,
+            source: AdcSource::Synthetic,
+            phase: 0,
+            feed,
+        },
+        QemuU {
+            dac: Ad5541::new(device(VirtualDacBus)),
+        },
+        QemuXy {
+            x: Ad5541::new(device(VirtualDacBus)),
+            y: Ad5541::new(device(VirtualDacBus)),
+            scale: lateral,
+        },
+        core,
+        tel,
+        cmds,
+        counters,
+    )
+}
+
+pub fn take_link(b: &mut Board) -> Uart {
+    match b.link.take() {
+        Some(l) => l,
+        None => fatal(9),
+    }
+}
+
+pub fn set_scales(l: &mut Loop, adc: Scale, lateral: Scale) {
+    l.adc.scale = adc;
+    l.xy_out.scale = lateral;
+}
+
+pub fn mask_loop() {
+    NVIC::mask(LoopIrq);
+    cortex_m::asm::dsb();
+    cortex_m::asm::isb();
+}
+
+pub fn unmask_loop() {
+    // SAFETY: the loop state is initialised before the first unmask (app::run).
+    unsafe { NVIC::unmask(LoopIrq) };
+}
+
+fn timer_stop() {
+    // SAFETY: TIMER0 registers.
+    unsafe {
+        write_volatile(reg(TIMER0_BASE, TIMER_CTRL), 0);
+        write_volatile(reg(TIMER0_BASE, TIMER_INTCLEAR), 1);
+    }
+    NVIC::unpend(LoopIrq);
+}
+
+fn timer_start(period_ticks: u32) {
+    // SAFETY: TIMER0 registers. The timer counts RELOAD … 0: a period of RELOAD + 1 ticks.
+    unsafe {
+        write_volatile(
+            reg(TIMER0_BASE, TIMER_RELOAD),
+            period_ticks.saturating_sub(1),
+        );
+        write_volatile(
+            reg(TIMER0_BASE, TIMER_VALUE),
+            period_ticks.saturating_sub(1),
+        );
+        write_volatile(
+            reg(TIMER0_BASE, TIMER_CTRL),
+            TIMER_CTRL_EN | TIMER_CTRL_IRQEN,
+        );
+    }
+}
+
+/// Main loop housekeeping: in replay mode, one loop interrupt per fed sample, as long as the
+/// telemetry queue has room for its Step frame and a possible Record frame.
+pub fn poll(b: &mut Board, telemetry_free: usize) {
+    if b.feeding && telemetry_free >= 2 && b.feed_tx.free() < FEED_DEPTH {
+        NVIC::pend(LoopIrq);
+    }
+}
+
+/// True while replay samples wait for the loop.
+pub fn samples_pending(b: &Board) -> bool {
+    b.feeding && b.feed_tx.free() < FEED_DEPTH
+}
+
+/// Sleeps until an interrupt, unless work is already waiting (checked with interrupts off,
+/// so a wake-up between the check and `wfi` is not lost: a pending interrupt ends `wfi`).
+pub fn idle(b: &Board) {
+    cortex_m::interrupt::free(|_| {
+        // SAFETY: UART0 state register.
+        let rx = unsafe { read_volatile(reg(UART0, UART_STATE)) } & UART_STATE_RXFULL != 0;
+        if !rx && !samples_pending(b) {
+            cortex_m::asm::wfi();
+        }
+    });
+}
+
+/// Host bytes are taken only while a whole replay block still fits the replay queue, so a
+/// decoded block never has to be refused; QEMU then holds the bytes (flow control).
+pub fn can_accept_command(b: &Board) -> bool {
+    b.feed_tx.free() >= MAX_FEED
+}
+
+pub fn set_source(b: &mut Board, src: Source) -> u8 {
+    timer_stop();
+    match src {
+        Source::Timer { period_ticks } => {
+            b.feeding = false;
+            app::with_loop(|l| {
+                l.adc.source = AdcSource::Synthetic;
+                l.index = 0;
+            });
+            if period_ticks != 0 {
+                timer_start(period_ticks);
+            }
+        }
+        Source::Feed => {
+            b.feeding = true;
+            b.next_feed_index = 0;
+            app::with_loop(|l| {
+                // Samples of an earlier replay still queued are discarded.
+                while l.adc.feed.pop().is_some() {}
+                l.adc.source = AdcSource::Feed;
+                l.index = 0;
+            });
+        }
+    }
+    ack::OK
+}
+
+pub fn feed(b: &mut Board, block: &FeedBlock) -> u8 {
+    if !b.feeding {
+        return ack::BUSY;
+    }
+    if block.first_index != b.next_feed_index {
+        return ack::FEED_GAP;
+    }
+    let n = (block.len as usize).min(MAX_FEED);
+    let mut pushed = 0u32;
+    match &block.samples {
+        FeedSamples::Codes(c) => {
+            for &v in c.iter().take(n) {
+                if b.feed_tx.push(FeedSample::Code(v)).is_ok() {
+                    pushed += 1;
+                }
+            }
+        }
+        FeedSamples::Metres(m) => {
+            for &v in m.iter().take(n) {
+                if b.feed_tx.push(FeedSample::Metres(v)).is_ok() {
+                    pushed += 1;
+                }
+            }
+        }
+    }
+    b.next_feed_index = b.next_feed_index.wrapping_add(pushed);
+    if pushed as usize == n {
+        ack::OK
+    } else {
+        // Unreachable with the receive gating above; reported rather than hidden.
+        ack::FEED_GAP
+    }
+}
+
+fn timer1_now() -> u32 {
+    // SAFETY: TIMER1 value register.
+    unsafe { read_volatile(reg(TIMER1_BASE, TIMER_VALUE)) }
+}
+
+/// Instructions per loop interrupt, measured as the SysTick time of `steps` timer-driven
+/// loop interrupts minus the counted idle loop that runs between them.
+///
+/// Under `-icount shift=N` QEMU's virtual clock advances 2^N ns per executed instruction
+/// (exception entry/exit are not instructions and take no virtual time), and SysTick counts
+/// that virtual clock at 25 MHz, so `instructions = ticks × 40 / 2^N`: the host does this
+/// conversion, after checking it with [`calibrate`].
+///
+/// Window: from the first SysTick read to the second, thread mode executes `movs` (1), the
+/// idle loop (4 instructions per iteration: `ldr`, `adds`, `cmp`, `bmi`) and the second `ldr`
+/// (1); everything else is the loop interrupts.
+pub fn bench(
+    b: &mut Board,
+    mode: Option<Mode>,
+    steps: u32,
+    period_ticks: u32,
+) -> Option<BenchFrame> {
+    if steps == 0 || period_ticks < 2 {
+        return None;
+    }
+    timer_stop();
+    b.feeding = false;
+    let configured = app::with_loop(|l| {
+        l.adc.source = AdcSource::Synthetic;
+        l.per_sample = false;
+        match l.core.as_mut() {
+            Some(c) => {
+                c.command(match mode {
+                    Some(m) => CoreCommand::Start(m),
+                    None => CoreCommand::Stop,
+                });
+                true
+            }
+            None => false,
+        }
+    });
+    if configured != Some(true) {
+        return None;
+    }
+    let counter = app::COUNTERS.samples.as_ptr();
+    let target = app::COUNTERS
+        .samples
+        .load(Ordering::Relaxed)
+        .wrapping_add(steps);
+    let (t0, t1, idle): (u32, u32, u32);
+    let w0 = timer1_now();
+    timer_start(period_ticks);
+    // SAFETY: reads SysTick and the sample counter; the loop interrupt writes the counter
+    // (a plain aligned word) concurrently, which is the point.
+    unsafe {
+        core::arch::asm!(
+            "ldr {t0}, [{cvr}]",
+            "movs {it}, #0",
+            "2:",
+            "ldr {tmp}, [{cnt}]",
+            "adds {it}, {it}, #1",
+            "cmp {tmp}, {target}",
+            "bmi 2b",
+            "ldr {t1}, [{cvr}]",
+            cvr = in(reg) SYST_CVR,
+            cnt = in(reg) counter,
+            target = in(reg) target,
+            tmp = out(reg) _,
+            it = out(reg) idle,
+            t0 = out(reg) t0,
+            t1 = out(reg) t1,
+            options(nostack, readonly),
+        );
+    }
+    timer_stop();
+    let w1 = timer1_now();
+    app::with_loop(|l| {
+        if let Some(c) = l.core.as_mut() {
+            c.command(CoreCommand::Stop);
+        }
+    });
+    let ticks = t0.wrapping_sub(t1) & 0x00FF_FFFF;
+    // SysTick is 24 bits: a window of 2^24 ticks or more would wrap unseen.
+    let wrapped = w0.wrapping_sub(w1) >= 0x00FF_0000;
+    Some(BenchFrame {
+        mode: match mode {
+            None => 0,
+            Some(Mode::Dive) => 1,
+            Some(Mode::Sve) => 2,
+        },
+        steps,
+        ticks: if wrapped { 0 } else { ticks },
+        idle_iterations: idle,
+        idle_insns_per_iteration: 4,
+        fixed_insns: 2,
+    })
+}
+
+/// SysTick ticks for a loop of exactly `2 × iterations + 1` instructions (the `subs`/`bne`
+/// pairs and the closing SysTick read), with interrupts off.
+pub fn calibrate(iterations: u32) -> Option<CalibrationFrame> {
+    let n = iterations.max(1);
+    let w0 = timer1_now();
+    let (t0, t1) = cortex_m::interrupt::free(|_| {
+        let (t0, t1): (u32, u32);
+        // SAFETY: reads SysTick; a counted register loop.
+        unsafe {
+            core::arch::asm!(
+                "ldr {t0}, [{cvr}]",
+                "2:",
+                "subs {n}, {n}, #1",
+                "bne 2b",
+                "ldr {t1}, [{cvr}]",
+                cvr = in(reg) SYST_CVR,
+                n = inout(reg) n => _,
+                t0 = out(reg) t0,
+                t1 = out(reg) t1,
+                options(nostack, readonly),
+            );
+        }
+        (t0, t1)
+    });
+    let w1 = timer1_now();
+    let wrapped = w0.wrapping_sub(w1) >= 0x00FF_0000;
+    Some(CalibrationFrame {
+        iterations: n,
+        instructions: n.wrapping_mul(2).wrapping_add(1),
+        ticks: if wrapped {
+            0
+        } else {
+            t0.wrapping_sub(t1) & 0x00FF_FFFF
+        },
+    })
+}
+
+pub fn exit(code: u8) -> ! {
+    cortex_m_semihosting::debug::exit(if code == 0 {
+        cortex_m_semihosting::debug::EXIT_SUCCESS
+    } else {
+        cortex_m_semihosting::debug::EXIT_FAILURE
+    });
+    #[allow(clippy::empty_loop)]
+    loop {}
+}
+
+/// Unrecoverable start-up errors and faults: log, then end QEMU with a failure status so a
+/// test never hangs on a dead image.
+pub fn fatal(code: u8) -> ! {
+    defmt::error!("fatal {=u8}", code);
+    exit(code.max(1))
+}
+
+#[cortex_m_rt::exception]
+unsafe fn HardFault(_ef: &cortex_m_rt::ExceptionFrame) -> ! {
+    fatal(2)
+}

@@ -1,0 +1,19 @@
+//! The board-independent part of the visco firmware: the loop body, the boundary to the
+//! core, converter drivers over embedded-hal 1.0, code ↔ metres conversion, and the
+//! interrupt-safe queues. It builds and tests on the host (`cargo test -p visco-firmware`);
+//! the binary (`src/main.rs`) adds the boards, the interrupt and the host link.
+#![no_std]
+#![warn(missing_docs)]
+
+#[cfg(test)]
+extern crate std;
+
+pub mod core_glue;
+pub mod drivers;
+pub mod loop_body;
+pub mod scale;
+pub mod spi_device;
+pub mod spsc;
+
+#[cfg(test)]
+mod testspi;

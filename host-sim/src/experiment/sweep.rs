@@ -1,0 +1,197 @@
+//! Beyond the paper: how fast can each mode image before its accuracy breaks?
+//!
+//! * SVE: the line period from the paper's 2 s down, on 5 lines of 50 pixels across the cell.
+//! * DIVE: the tap time from the paper's 0.2 s down, on 5 × 5 taps across the cell.
+//!
+//! A user who images faster re-tunes the loop to the speed, and so does the sweep, by rules
+//! stated here (not per-point tweaks):
+//!
+//! * estimator memory 1/β: SVE min(2 ms, a quarter of a pixel's time) — it must forget the
+//!   previous pixel; DIVE a twentieth of the tap;
+//! * SVE depth controller kᵢ: the tracking error of an integral loop on a ramp is
+//!   slope·speed/(kᵢ·g); kᵢ grows with the scan speed, `kᵢ = 2000/s · (v / 5 µm/s)^½`, capped at
+//!   2.5 % of the loop rate (the discrete integrator's limit);
+//! * SVE high-pass: the tones must pass and the topography's changes must not; its corner
+//!   follows the rate at which features pass under the tip, `v/(0.5 µm)`, between f₂/8 and f₂/4;
+//! * DIVE approach and retract speed: the vertical travel (~1 µm) in a fifth of the tap, at most
+//!   the validation's limit of 1 nm per loop period; settle and read-out scale with the tap; the
+//!   lateral move lasts at least three ring-down times 2Q/ω₀ of the free cantilever, so that the
+//!   ringing left by the retract has died before the next approach.
+//!
+//! Errors as in the demo (paper scaling, % of each property's maximum).
+
+use super::metrics::{self, ImageErrors, PAPER_MAX};
+use super::{run_dive, run_sve, ExperimentError, Setup};
+use crate::sample::Sample;
+use serde::Serialize;
+use visco_core::geometry::contact_radius;
+
+/// One point of a sweep.
+#[derive(Clone, Debug, Serialize)]
+pub struct SweepPoint {
+    /// SVE line period or DIVE tap time (s).
+    pub period_s: f64,
+    /// Map pixels per second of imaging time.
+    pub pixels_per_s: f64,
+    /// RMS error h, c, k (% of max).
+    pub rms_error_pct: [f64; 3],
+    /// Largest error h, c, k (% of max).
+    pub max_error_pct: [f64; 3],
+    /// The largest of the three RMS errors.
+    pub worst_rms_pct: f64,
+    /// Pixels or taps that failed.
+    pub failed: usize,
+    /// Simulated seconds.
+    pub simulated_s: f64,
+}
+
+fn point(
+    period_s: f64,
+    pixels: usize,
+    imaging_s: f64,
+    e: &ImageErrors,
+    failed: usize,
+    simulated_s: f64,
+) -> SweepPoint {
+    let rms = [e.h.rms_pct, e.c.rms_pct, e.k.rms_pct];
+    SweepPoint {
+        period_s,
+        pixels_per_s: pixels as f64 / imaging_s,
+        rms_error_pct: rms,
+        max_error_pct: [e.h.max_pct, e.c.max_pct, e.k.max_pct],
+        worst_rms_pct: rms.iter().cloned().fold(f64::NAN, f64::max),
+        failed,
+        simulated_s,
+    }
+}
+
+/// The SVE setup at `line_period_s`, tuned by the module's rules.
+pub fn sve_setup(line_period_s: f64, sample_rate_hz: f64, seed: u64) -> Setup {
+    let mut setup = Setup::paper(Sample::cell_phantom(), sample_rate_hz, seed);
+    let c = &mut setup.config;
+    let lines = 5u32;
+    c.sve.lines = lines;
+    c.sve.dy_m = 5e-6 / lines as f64;
+    c.sve.y0_m = 2.5e-6 / lines as f64;
+    c.sve.line_period_s = line_period_s;
+    c.sve.turn_s = (0.01 * line_period_s).max(1e-3);
+    let half = (line_period_s - c.sve.turn_s) / 2.0;
+    let pixel_s = half / c.sve.pixels as f64;
+    let speed = (c.sve.x1_m - c.sve.x0_m) / half;
+    c.sve.estimator.beta_per_s = 1.0 / (2e-3f64).min(pixel_s / 4.0);
+    c.sve.ki_per_s = (2000.0 * (speed / 5e-6).sqrt()).min(0.025 * sample_rate_hz);
+    let f2 = c.sve.excitation.f2_hz;
+    c.sve.highpass_hz = (speed / 0.5e-6).clamp(f2 / 8.0, f2 / 4.0);
+    setup
+}
+
+/// The DIVE setup at `tap_s`, tuned by the module's rules.
+pub fn dive_setup(tap_s: f64, sample_rate_hz: f64, seed: u64) -> Setup {
+    let mut setup = Setup::paper(Sample::cell_phantom(), sample_rate_hz, seed);
+    let c = &mut setup.config;
+    let n = 5u32;
+    c.dive.nx = n;
+    c.dive.ny = n;
+    c.dive.dx_m = 5e-6 / n as f64;
+    c.dive.dy_m = 5e-6 / n as f64;
+    c.dive.x0_m = 2.5e-6 / n as f64;
+    c.dive.y0_m = 2.5e-6 / n as f64;
+    let scale = tap_s / 0.2;
+    c.dive.tap_s = tap_s;
+    // The free cantilever rings down with τ = 2Q/ω₀ (1.6 ms for the paper's) after a retract;
+    // the next approach must not start before three of them, or the ringing reads as contact.
+    let ring_s = 2.0 * c.cantilever.q() / (2.0 * std::f64::consts::PI * c.cantilever.f0_hz());
+    c.dive.move_s = (2e-3 * scale).max(3.0 * ring_s);
+    c.dive.settle_s = 5e-3 * scale;
+    c.dive.readout_s = 10e-3 * scale;
+    c.dive.excitation.ramp_s = (2e-3 * scale).max(2e-4);
+    c.dive.estimator.beta_per_s = 20.0 / tap_s;
+    // About 1 µm of travel down and back within a fifth of the tap, ≤ 1 nm per period.
+    let v = (1e-6 / (0.2 * tap_s))
+        .max(100e-6)
+        .min(0.9e-9 * sample_rate_hz);
+    c.approach.speed_m_per_s = v;
+    c.approach.retract_speed_m_per_s = (2.0 * v).min(0.9e-9 * sample_rate_hz);
+    setup
+}
+
+/// Run the SVE sweep over `periods`; `progress` gets each finished point.
+pub fn sve_sweep(
+    periods: &[f64],
+    sample_rate_hz: f64,
+    seed: u64,
+    mut progress: impl FnMut(&SweepPoint),
+) -> Result<Vec<SweepPoint>, ExperimentError> {
+    let mut out = Vec::new();
+    for &p in periods {
+        let setup = sve_setup(p, sample_rate_hz, seed);
+        let c = &setup.config;
+        let o = run_sve(&setup, &mut (), |_| {})?;
+        let steep = metrics::steep_slope(
+            c.sve.depth_ref_m,
+            contact_radius(c.tip_radius_m, c.sve.depth_ref_m),
+        );
+        let e = metrics::image_errors(
+            o.pixels
+                .iter()
+                .map(|px| (&px.scaled.paper, &px.touched.reference, px.slope)),
+            &PAPER_MAX,
+            steep,
+        );
+        let expected = (c.sve.pixels * c.sve.lines) as usize;
+        let pt = point(
+            p,
+            o.pixels.len(),
+            c.sve_imaging_s(),
+            &e,
+            expected - o.pixels.len(),
+            o.simulated_s,
+        );
+        progress(&pt);
+        out.push(pt);
+    }
+    Ok(out)
+}
+
+/// Run the DIVE sweep over `taps`; `progress` gets each finished point.
+pub fn dive_sweep(
+    taps: &[f64],
+    sample_rate_hz: f64,
+    seed: u64,
+    mut progress: impl FnMut(&SweepPoint),
+) -> Result<Vec<SweepPoint>, ExperimentError> {
+    let mut out = Vec::new();
+    for &t in taps {
+        let setup = dive_setup(t, sample_rate_hz, seed);
+        let c = &setup.config;
+        let o = run_dive(&setup, &mut (), |_| {})?;
+        let steep = metrics::steep_slope(c.dive.indent_depth_m, c.tip_radius_m);
+        let ok = o.taps.iter().filter(|t| !t.failed);
+        let e = metrics::image_errors(
+            ok.map(|t| (&t.scaled.paper, &t.touched.reference, t.slope)),
+            &PAPER_MAX,
+            steep,
+        );
+        let failed = o.taps.iter().filter(|t| t.failed).count() + (c.dive.nx * c.dive.ny) as usize
+            - o.taps.len();
+        let pt = point(
+            t,
+            o.taps.len() - o.taps.iter().filter(|t| t.failed).count(),
+            c.dive_imaging_s(),
+            &e,
+            failed,
+            o.simulated_s,
+        );
+        progress(&pt);
+        out.push(pt);
+    }
+    Ok(out)
+}
+
+/// The fastest point whose worst RMS error is within `limit_pct` and that lost no pixel.
+pub fn fastest_within(points: &[SweepPoint], limit_pct: f64) -> Option<&SweepPoint> {
+    points
+        .iter()
+        .filter(|p| p.failed == 0 && p.worst_rms_pct <= limit_pct)
+        .max_by(|a, b| a.pixels_per_s.total_cmp(&b.pixels_per_s))
+}
