@@ -711,6 +711,8 @@ pub(crate) fn identify(
         None => None,
     };
     let mut total = Summary::default();
+    let mut env = super::figures::Envelope::new(sv.rows);
+    let mut detail_rows: Vec<(f64, f64, f64)> = Vec::new();
     {
         let mut reader = RecordingReader::open(path)?;
         let mut row = Row::default();
@@ -752,6 +754,7 @@ pub(crate) fn identify(
             let resid = row.d_m - sim;
             tap_acc.add(resid);
             total.add(resid);
+            env.push(row.t_s, row.d_m, sim);
             if tap.window.as_ref().is_some_and(|w| w.contains(&i)) {
                 dwell_acc.add(resid);
             }
@@ -774,6 +777,7 @@ pub(crate) fn identify(
                 }
             }
             if Some(k) == detail_tap && tap.readout.as_ref().is_some_and(|ro| ro.contains(&i)) {
+                detail_rows.push((row.t_s, row.d_m, sim));
                 write_line(&mut line);
                 detail_buf.push_str(&line);
                 if detail_buf.len() > 1 << 16 {
@@ -798,6 +802,29 @@ pub(crate) fn identify(
         Some(w) => {
             let p = w.path().to_path_buf();
             staged.finish(w)?;
+            Some(p)
+        }
+        None => None,
+    };
+    let name = path
+        .file_name()
+        .map_or(String::new(), |n| n.to_string_lossy().into_owned());
+    let png = out.path("fit.png");
+    super::figures::stage_overview(
+        staged,
+        &png,
+        &format!("{name}: DIVE, the plant on each tap's identified bed"),
+        &env,
+    )?;
+    let detail_png = match detail_tap {
+        Some(k) => {
+            let p = out.path("fit_detail.png");
+            super::figures::stage_detail(
+                staged,
+                &p,
+                &format!("{name}: tap {} read-out, every sample", taps[k].index),
+                &detail_rows,
+            )?;
             Some(p)
         }
         None => None,
@@ -903,11 +930,8 @@ pub(crate) fn identify(
                 .with("series_csv", series_path.display().to_string())
                 .with("series_stride_rows", stride)
                 .with("detail_csv", detail_path.map(|p| p.display().to_string()))
-                .with("figure_png", Json::Null)
-                .with(
-                    "figure_note",
-                    "PNG pending: the figure module has not landed; plot the series CSVs",
-                ),
+                .with("figure_png", png.display().to_string())
+                .with("detail_png", detail_png.map(|p| p.display().to_string())),
         );
     Ok(DiveResult {
         json: j,

@@ -103,9 +103,36 @@ impl Staged {
 
     /// Writes a whole file.
     pub fn write(&mut self, path: &Path, text: &str) -> Result<()> {
+        self.write_bytes(path, text.as_bytes())
+    }
+
+    /// Writes a whole file of bytes.
+    pub fn write_bytes(&mut self, path: &Path, bytes: &[u8]) -> Result<()> {
         let mut w = self.create(path)?;
-        w.write_str(text)?;
+        match w.out.as_mut() {
+            Some(out) => out
+                .write_all(bytes)
+                .map_err(|e| IdentifyError::io(path, "cannot write", &e))?,
+            None => return Err(IdentifyError::new(path, "written after it was finished")),
+        }
         self.finish(w)
+    }
+
+    /// Stages a file that another writer produces: `render` writes it to the temporary path
+    /// given (e.g. a figure of [`crate::output::figure`], which writes atomically itself).
+    pub fn render(
+        &mut self,
+        path: &Path,
+        render: impl FnOnce(&Path) -> crate::output::Result<()>,
+    ) -> Result<()> {
+        let w = self.create(path)?;
+        let tmp = w.tmp.clone();
+        render(&tmp).map_err(|e| IdentifyError::new(path, e.reason))?;
+        let mut w = w;
+        w.out.take();
+        w.finished = true;
+        self.files.push((tmp, path.to_path_buf()));
+        Ok(())
     }
 
     /// The final paths staged so far.
@@ -152,44 +179,4 @@ pub fn push_num(s: &mut String, v: f64) {
     } else {
         s.push_str("nan");
     }
-}
-
-/// A map as a CSV grid: one line per scan line (y increasing), one column per pixel (x
-/// increasing), SI values, `nan` where no sample fell; `#` lines describe the axes, so the file
-/// reads as a CSV matrix (the sample grid format of `sample/io.rs`, except for the `nan`s).
-pub fn grid_csv(
-    quantity: &str,
-    unit: &str,
-    x_centres: &[f64],
-    y_centres: &[f64],
-    v: &[f64],
-) -> String {
-    let mut s = String::new();
-    s.push_str(&format!("# visco identify map: {quantity} ({unit})\n"));
-    s.push_str(&format!(
-        "# {} rows (y) x {} columns (x); row j is line j (y increasing), column i is pixel i (x increasing)\n",
-        y_centres.len(),
-        x_centres.len()
-    ));
-    for (name, c) in [("x_m", x_centres), ("y_m", y_centres)] {
-        s.push_str(&format!("# {name}: "));
-        for (i, x) in c.iter().enumerate() {
-            if i > 0 {
-                s.push(',');
-            }
-            push_num(&mut s, *x);
-        }
-        s.push('\n');
-    }
-    let nx = x_centres.len();
-    for j in 0..y_centres.len() {
-        for i in 0..nx {
-            if i > 0 {
-                s.push(',');
-            }
-            push_num(&mut s, v[j * nx + i]);
-        }
-        s.push('\n');
-    }
-    s
 }

@@ -16,9 +16,10 @@
 //! recorded U, and reports the RMS misfit against the recorded D (`rms_misfit_m`) with the
 //! series (and a figure when the figure module is available).
 //!
-//! Outputs: `OUT.json`, and next to it (or in `--out DIR`) `<stem>_fit.csv` and, for SVE, the
-//! map grids `<stem>_<quantity>.csv`, where `<stem>` is the JSON file's stem. All are written
-//! atomically as a group: on any error nothing is left behind.
+//! Outputs: `OUT.json`, and next to it (or in `--out DIR`) the fit's series `<stem>_fit.csv`
+//! and figure `<stem>_fit.png` (DIVE and SVE also a full-rate detail, `<stem>_fit_detail.*`),
+//! and for SVE the maps `<stem>_<quantity>.csv` / `.gsf` / `.png`, where `<stem>` is the JSON
+//! file's stem. All are written atomically as a group: on any error nothing is left behind.
 //!
 //! Large `dive`/`sve` logs are streamed with [`crate::recording::RecordingReader`] in three
 //! passes (survey, estimation, fit) in memory bounded by the number of taps, lines and pixels;
@@ -26,6 +27,7 @@
 
 pub mod dive;
 pub mod error;
+pub mod figures;
 pub mod files;
 pub mod force_curve;
 pub mod json;
@@ -209,6 +211,21 @@ fn run(path: &Path, meta: &Metadata, opts: &Options, out: Outputs) -> Result<Rep
             let fit = force_curve::identify(&rec, path, opts)?;
             let series = out.path("fit.csv");
             staged.write(&series, &fit.series_csv(&rec))?;
+            let png = out.path("fit.png");
+            let mut env = figures::Envelope::with_max_points(rec.len() as u64, 50_000);
+            for i in 0..rec.len() {
+                env.push(rec.t_s[i], rec.d_m[i], fit.simulated_d_m[i]);
+            }
+            figures::stage_overview(
+                &mut staged,
+                &png,
+                &format!(
+                    "{}: force curve, quasi-static sphere on a Kelvin–Voigt bed",
+                    path.file_name()
+                        .map_or(String::new(), |n| n.to_string_lossy().into_owned())
+                ),
+                &env,
+            )?;
             let mut j = fit.to_json(&rec);
             j.set("cantilever", cantilever_json(meta));
             j.set("tip_radius_m", meta.tip_radius_m);
@@ -216,11 +233,7 @@ fn run(path: &Path, meta: &Metadata, opts: &Options, out: Outputs) -> Result<Rep
             j.set("rms_misfit_m", fit.rms_misfit_m);
             let mut fj = fit.fit_json();
             fj.set("series_csv", series.display().to_string());
-            fj.set("figure_png", Json::Null);
-            fj.set(
-                "figure_note",
-                "PNG pending: the figure module has not landed; plot the series CSV",
-            );
+            fj.set("figure_png", png.display().to_string());
             j.set("fit", fj);
             let mut notes = fit.notes.clone();
             notes.insert(

@@ -30,11 +30,15 @@ use visco_core::observer::{Observer, ObserverConfig};
 use visco_core::Cantilever;
 
 use super::error::{IdentifyError, Result};
-use super::files::{grid_csv, push_num, Staged};
+use super::files::{push_num, Staged};
 use super::json::Json;
 use super::replay::{self, FoundContact, FreeContact, PhiProbe, PhiTypical, Smoother};
 use super::signal::{apex_depth_from_effective, contact_area, Summary};
 use super::{cantilever_json, Options, Outputs};
+use crate::output::csv as output_csv;
+use crate::output::figure::{self, MapStyle, Quantity};
+use crate::output::gsf::{self, NanPolicy};
+use crate::output::map::{Grid, Map};
 use crate::recording::{RecordingReader, Row};
 use crate::sample::Sample;
 
@@ -419,26 +423,52 @@ pub(crate) fn identify(
         "N/m per element (k/n)".into(),
         agg.iter().zip(&n_el).map(|(a, n)| a[1] / n).collect(),
     ));
+    // The maps through the output layer: CSV grid, Gwyddion file and figure per quantity.
+    let grid = map_grid(&x_centres, &y_lines, dx);
+    let regular = lines_regular(&y_lines);
     let mut map_json = Json::obj();
+    let title = path
+        .file_name()
+        .map_or(String::new(), |n| n.to_string_lossy().into_owned());
     for (name, unit, v) in &maps {
         let stem = name
             .trim_end_matches("_ns_per_m")
             .trim_end_matches("_n_per_m")
             .trim_end_matches("_m");
-        let file = out.path(&format!("{stem}.csv"));
-        staged.write(&file, &grid_csv(name, unit, &x_centres, &y_lines, v))?;
-        let mut s = Summary::default();
-        v.iter().for_each(|x| s.add(*x));
+        let si = unit.split(' ').next().unwrap_or("").to_string();
+        let map = Map::from_vec(grid, name.as_str(), si.as_str(), v.clone());
+        let csv_path = out.path(&format!("{stem}.csv"));
+        staged.write(&csv_path, &output_csv::csv_string(&map))?;
+        let gsf_path = out.path(&format!("{stem}.gsf"));
+        staged.write_bytes(&gsf_path, &gsf::gsf_bytes(&map, NanPolicy::FillMean))?;
+        let png_path = out.path(&format!("{stem}.png"));
+        let (what, symbol) = describe(name);
+        let style = MapStyle {
+            title: Some(super::figures::plain(&format!(
+                "{title}: SVE, {what} (forward and backward averaged)"
+            ))),
+            quantity: Some(Quantity::new(symbol, si.as_str())),
+            letters: false,
+            ..Default::default()
+        };
+        staged.render(&png_path, |tmp| {
+            figure::map_panels(tmp, &[(&map, "")], &style)
+        })?;
+        let st = map.stats();
+        let mut sm = Summary::default();
+        v.iter().for_each(|x| sm.add(*x));
         map_json.set(
             name,
             Json::obj()
-                .with("file", file.display().to_string())
+                .with("file", csv_path.display().to_string())
+                .with("gsf", gsf_path.display().to_string())
+                .with("png", png_path.display().to_string())
                 .with("unit", unit.as_str())
-                .with("valid_pixels", s.n)
-                .with("mean", s.mean())
-                .with("std", s.std())
-                .with("min", if s.n > 0 { s.min } else { f64::NAN })
-                .with("max", if s.n > 0 { s.max } else { f64::NAN }),
+                .with("valid_pixels", st.count)
+                .with("mean", st.mean)
+                .with("std", sm.std())
+                .with("min", st.min)
+                .with("max", st.max),
         );
     }
     let empty = agg.iter().filter(|a| !a[1].is_finite()).count();
@@ -469,6 +499,8 @@ pub(crate) fn identify(
     let span = ((10e-3 * fs) as u64).min((first.1 - first.0) / 2);
     let detail_rows = mid.saturating_sub(span)..mid + span;
     let (mut total, mut scan) = (Summary::default(), Summary::default());
+    let mut env = super::figures::Envelope::new(sv.rows);
+    let mut detail_pts: Vec<(f64, f64, f64)> = Vec::new();
     {
         let mut reader = RecordingReader::open(path)?;
         let mut row = Row::default();
@@ -483,6 +515,7 @@ pub(crate) fn identify(
             let sim = plant.step(row.u_m, x, y) + contact.d0_m;
             let resid = row.d_m - sim;
             total.add(resid);
+            env.push(row.t_s, row.d_m, sim);
             while k < passes.len() && i >= passes[k].rows.1 {
                 k += 1;
             }
@@ -490,6 +523,9 @@ pub(crate) fn identify(
                 scan.add(resid);
             }
             let in_detail = detail_rows.contains(&i);
+            if in_detail {
+                detail_pts.push((row.t_s, row.d_m, sim));
+            }
             if i % stride == 0 || in_detail {
                 line.clear();
                 for v in [row.t_s, row.u_m, row.d_m, sim, resid, x] {
@@ -522,6 +558,20 @@ pub(crate) fn identify(
     let detail_path = detail.path().to_path_buf();
     staged.finish(series)?;
     staged.finish(detail)?;
+    let png = out.path("fit.png");
+    super::figures::stage_overview(
+        staged,
+        &png,
+        &format!("{title}: SVE, the plant on the identified bed"),
+        &env,
+    )?;
+    let detail_png = out.path("fit_detail.png");
+    super::figures::stage_detail(
+        staged,
+        &detail_png,
+        &format!("{title}: 20 ms of the first line, every sample"),
+        &detail_pts,
+    )?;
 
     let t0 = 0.0;
     let forward = passes.iter().filter(|p| p.dir > 0).count();
@@ -576,10 +626,16 @@ pub(crate) fn identify(
                 .with("x_m", x_centres.clone())
                 .with("y_m", y_lines.clone())
                 .with("empty_pixels", empty)
+                .with("lines_equally_spaced", regular)
                 .with(
                     "layout",
-                    "CSV rows are lines (y increasing), columns pixels (x increasing); nan \
-                     where no sample fell",
+                    if regular {
+                        "the output layer's map CSV (bottom row first) and Gwyddion .gsf; nan \
+                         where no sample fell"
+                    } else {
+                        "the output layer's map CSV and .gsf with one row per line in order; \
+                         the lines are not equally spaced, their y are grid.y_m"
+                    },
                 ),
         )
         .with(
@@ -619,11 +675,8 @@ pub(crate) fn identify(
                 .with("series_csv", series_path.display().to_string())
                 .with("series_stride_rows", stride)
                 .with("detail_csv", detail_path.display().to_string())
-                .with("figure_png", Json::Null)
-                .with(
-                    "figure_note",
-                    "PNG pending: the figure module has not landed; plot the series CSVs",
-                ),
+                .with("figure_png", png.display().to_string())
+                .with("detail_png", detail_png.display().to_string()),
         );
     Ok(SveResult {
         json: j,
@@ -721,4 +774,42 @@ fn bed_from_maps(
         )
     })
     .map_err(|e| IdentifyError::new(Path::new("(nominal sample)"), e.to_string()))
+}
+
+/// The maps' grid: pixel centres along x, and the lines along y (a regular spacing from the
+/// first to the last line; one line gets square pixels).
+fn map_grid(xc: &[f64], yl: &[f64], dx: f64) -> Grid {
+    let ny = yl.len();
+    let dy = if ny > 1 {
+        ((yl[ny - 1] - yl[0]) / (ny - 1) as f64).max(dx * 1e-6)
+    } else {
+        dx
+    };
+    Grid::covering(xc.len(), ny, xc[0], yl[0], dx, dy)
+}
+
+/// Whether the lines sit within 5 % of a regular spacing.
+fn lines_regular(yl: &[f64]) -> bool {
+    let ny = yl.len();
+    if ny < 3 {
+        return true;
+    }
+    let dy = (yl[ny - 1] - yl[0]) / (ny - 1) as f64;
+    yl.iter()
+        .enumerate()
+        .all(|(j, &y)| (y - (yl[0] + j as f64 * dy)).abs() <= 0.05 * dy.abs())
+}
+
+/// A map's description and symbol for its figure.
+fn describe(name: &str) -> (&'static str, &'static str) {
+    match name {
+        "c_ns_per_m" => ("damping, aggregate", "c"),
+        "k_n_per_m" => ("spring constant, aggregate", "k"),
+        "height_m" => ("surface height", "h"),
+        "bed_height_m" => ("bed height under the tip", "ĥ"),
+        "depth_m" => ("apex depth", "δ"),
+        "c_element_ns_per_m" => ("damping per element", "c/n"),
+        "k_element_n_per_m" => ("spring constant per element", "k/n"),
+        _ => ("map", "v"),
+    }
 }
