@@ -226,7 +226,7 @@ fn a_dive_recording_without_contact_is_refused_and_nothing_is_written() {
     let path = dir.path().join("free.csv");
     run.rec.write(&path).unwrap();
     let out = dir.path().join("out");
-    let mut opts = Options::new(out.join("free.json"));
+    let mut opts = Options::new(dir.path().join("free.json"));
     opts.out_dir = Some(out.clone());
     let e = identify(&path, &opts).unwrap_err();
     let msg = e.to_string();

@@ -176,10 +176,20 @@ pub fn identify(path: &Path, opts: &Options) -> Result<Report> {
             ));
         }
     }
+    // The report's directory must exist (a typo should fail, not grow a tree); `--out DIR`
+    // is created when missing, and removed again if nothing could be written.
+    if let Some(parent) = opts.json.parent().filter(|p| !p.as_os_str().is_empty()) {
+        if !parent.is_dir() {
+            return Err(
+                IdentifyError::new(&opts.json, "the report's directory does not exist")
+                    .with_fix(format!("create {} first", parent.display())),
+            );
+        }
+    }
     let created = if dir.exists() {
         false
     } else {
-        std::fs::create_dir_all(&dir)
+        std::fs::create_dir(&dir)
             .map_err(|e| IdentifyError::io(&dir, "cannot create the output directory", &e))?;
         true
     };
