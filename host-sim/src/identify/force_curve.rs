@@ -359,8 +359,11 @@ pub fn identify(rec: &Recording, path: &Path, opts: &Options) -> Result<ForceCur
     })
 }
 
+/// The `segment` column and the `# segments:` line's (number, kind) pairs.
+type Segments = (Vec<f64>, Vec<(i64, String)>);
+
 /// Segment numbers and kinds from the `segment` column and the `# segments:` line.
-fn segment_kinds(rec: &Recording) -> Option<(Vec<f64>, Vec<(i64, String)>)> {
+fn segment_kinds(rec: &Recording) -> Option<Segments> {
     let seg = rec.extra_column("segment")?.to_vec();
     let kinds = rec
         .meta

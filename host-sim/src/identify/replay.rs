@@ -337,7 +337,7 @@ impl Smoother {
 }
 
 /// The survey's contact search within one tap: the core detector on D less the mean free
-/// deflection so far, with γ raised to [`GAMMA_SIGMA`]·σ of the low-passed free deflection
+/// deflection so far, with γ raised to 6·σ of the low-passed free deflection
 /// when that is larger than the controller's γ.
 pub struct FreeContact {
     det: visco_core::contact::ContactDetector<f64>,
