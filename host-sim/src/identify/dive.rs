@@ -916,6 +916,29 @@ pub(crate) fn identify(
                 .with("contact_height_m", stat(&|t| t.contact_height_m)),
         )
         .with("deflection_clipped", sv.clip.to_json())
+        .with("notes", {
+            let mut notes: Vec<String> = Vec::new();
+            let none = taps.iter().filter(|t| t.contact.is_none()).count();
+            if none > 0 {
+                notes.push(format!("{none} tap(s) without contact: no estimates"));
+            }
+            if sv.clip.any() {
+                notes.push(
+                    "the deflection is clipped (ADC at full scale): those rows are skipped by \
+                     the estimator and show in the misfit"
+                        .into(),
+                );
+            }
+            if opts.lattice_origin_m.is_none() {
+                notes.push(
+                    "per-element values use the continuum count π a²/pitch²; on a coarse \
+                     lattice the sites under the tip differ from it by up to ~13 % (give \
+                     --lattice-origin for the exact count)"
+                        .into(),
+                );
+            }
+            notes
+        })
         .with("rms_misfit_m", total.rms())
         .with(
             "fit",

@@ -110,6 +110,9 @@ impl Options {
     }
 }
 
+/// Force curves are read into memory; larger files are refused (≈ 10 M rows).
+const FORCE_CURVE_MAX_BYTES: u64 = 1 << 30;
+
 /// The default element pitch: the paper's lattice (50 × 50 elements over 5 µm).
 pub const DEFAULT_PITCH_M: f64 = 100e-9;
 
@@ -217,6 +220,20 @@ fn run(path: &Path, meta: &Metadata, opts: &Options, out: Outputs) -> Result<Rep
         .with("units", units_json());
     let (mode_json, rms, outcome) = match meta.mode {
         Mode::ForceCurve => {
+            // Force curves are read whole (they are small: thousands to tens of thousands of
+            // rows); a file this large is a log, not a force curve.
+            let bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+            if bytes > FORCE_CURVE_MAX_BYTES {
+                return Err(IdentifyError::new(
+                    path,
+                    format!(
+                        "a force curve of {} MB is read whole, which this one is too large for \
+                         (limit {} MB)",
+                        bytes >> 20,
+                        FORCE_CURVE_MAX_BYTES >> 20
+                    ),
+                ));
+            }
             let rec = Recording::read(path)?;
             let fit = force_curve::identify(&rec, path, opts)?;
             let series = out.path("fit.csv");

@@ -658,6 +658,21 @@ pub(crate) fn identify(
                 .with("converge_s", CONVERGE_S),
         )
         .with("maps", map_json)
+        .with("notes", {
+            let mut notes: Vec<String> = vec![
+                "per-element values and the surface height use the continuum count and mean \
+                 sag at the apex depth; a coarse lattice between its rows differs by a few % \
+                 and a few nm"
+                    .to_string(),
+            ];
+            if !regular {
+                notes.push("the scan lines are not equally spaced (see grid.y_m)".into());
+            }
+            if empty > 0 {
+                notes.push(format!("{empty} pixel(s) without samples (nan)"));
+            }
+            notes
+        })
         .with("taps", Json::Arr(Vec::new()))
         .with("rms_misfit_m", total.rms())
         .with(
