@@ -3,6 +3,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod experiment;
+pub mod identify;
 pub mod output;
 pub mod plant;
 pub mod recording;

@@ -44,6 +44,7 @@ pub mod discretize;
 pub mod estimator;
 pub mod excitation;
 pub mod geometry;
+pub mod observer;
 pub mod prefilter;
 pub mod real;
 pub mod regressor;

@@ -7,6 +7,7 @@
 //! `RecordingError` already read `FILE:LINE: reason (fix: ...)`.
 
 mod demo;
+mod identify;
 mod import;
 mod sweep;
 
@@ -32,6 +33,8 @@ enum Command {
     Sweep(sweep::SweepArgs),
     /// Convert a vendor force-curve file (JPK, AFM Workshop, NT-MDT) into recording CSVs.
     Import(import::ImportArgs),
+    /// Identify a recording's viscoelastic parameters (dive, sve, force-curve) and its fit.
+    Identify(identify::IdentifyArgs),
 }
 
 /// Parses the command line, runs the subcommand, reports errors. Exit status: 0 success,
@@ -41,6 +44,7 @@ pub fn run() -> ExitCode {
     let result = match cli.command {
         Command::Demo(args) => demo::run(args),
         Command::Import(args) => import::run(args),
+        Command::Identify(args) => identify::run(args),
         Command::Sweep(args) => sweep::run(args),
     };
     match result {

@@ -1,0 +1,994 @@
+//! Force curves: the Kelvin–Voigt element bed under a sphere, quasi-static.
+//!
+//! ## The model
+//! A commercial force curve moves the base at µm/s and samples at kHz, far below the
+//! cantilever's resonance: its inertia `M·Z̈` and damping `C·Ḋ` are negligible next to `K·D`
+//! (the report computes both bounds), so the cantilever is a spring and the force on the tip is
+//! `F = −K·(D − D₀(U))` with `D₀` the free deflection (offset and linear tilt, from the free
+//! part of the approach). With a sphere of radius R pressed δ deep into the paper's bed of
+//! spring–damper elements (per-area spring `k_a = k_element/pitch²`, damper
+//! `c_a = c_element/pitch²`), summing the elements under the tip gives
+//!
+//! ```text
+//! F = k_a·V(δ) + c_a·A(δ)·δ̇ = k_a·V(δ) + c_a·dV/dt,   δ = h − Z,  Z = U − (D − D₀)
+//! ```
+//!
+//! with `V` the volume of the cap below the surface and `A = π a²` the contact area
+//! ([`super::signal::cap_volume`], `dV/dδ = A`). It is linear in (k_a, c_a) once the contact
+//! height h is known. As in the paper's (18), both sides are filtered instead of
+//! differentiating: with `1/(λs + 1)`, `F_f = k_a·V_f + c_a·(V − V_f)/λ` holds exactly, and a
+//! least-squares solve (f64 normal equations, `c_a ≥ 0`) gives (k_a, c_a). Samples out of
+//! contact have `V = 0` and do not move the estimate.
+//!
+//! ## The contact point
+//! 1. Baseline: `D₀ = b₀ + b₁·(U − U_ref)` fitted on the free part of the approach (offset
+//!    only when that part is short); its robust σ is the noise.
+//! 2. Threshold: going back from the end of the approach, the last sample still above
+//!    `−n·σ` (n = `--contact-sigma`, 5) — the tip stays in contact from the next one on.
+//! 3. Refined: h is the height that minimises the residual of the Kelvin–Voigt fit, searched
+//!    between the threshold crossing (the force is past n·σ there, so the contact is no later)
+//!    and twice the distance back to where the deflection left its free level.
+//!    The free part is then redefined to end before the contact, and 1–3 repeat until stable.
+//!
+//! The rows of the fit are the approach and the retract while the sample still pushes. Holds
+//! (`pause` segments) are left out: a Kelvin–Voigt bed cannot relax at constant depth, and a
+//! stress-relaxation hold fitted with it gives a negative stiffness; the pull on the retract is
+//! adhesion, which the model has no term for. Both stay in the misfit, where `diagnose` looks.
+//!
+//! The aggregate values at the deepest point are the tangent stiffness `k = k_a·A(δ_max)` and
+//! `c = c_a·A(δ_max)` (what DIVE/SVE would identify there); per element `k_a·pitch²`.
+//!
+//! ## The fit
+//! The same law simulated from the recorded U (quasi-static, semi-implicit in time): out of
+//! contact D = D₀(U); in contact δ solves `K·(δ − h + U) + k_a·V(δ) + c_a·A·δ̇ = 0`; then
+//! `D = δ − h + U + D₀(U)`, against the recorded D.
+
+use std::ops::Range;
+use std::path::Path;
+
+use super::error::{IdentifyError, Result};
+use super::json::Json;
+use super::signal::{cap_volume, contact_area, moving_average, robust_sigma, FohLowPass};
+use super::Options;
+use crate::recording::Recording;
+
+/// The free deflection `D₀(U) = offset + tilt·(U − u_ref)`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Baseline {
+    /// D₀ at `u_ref` (m).
+    pub offset_m: f64,
+    /// dD₀/dU (dimensionless); 0 when only an offset was fitted.
+    pub tilt: f64,
+    /// Reference base position (m): the end of the free part.
+    pub u_ref_m: f64,
+    /// Whether a tilt was fitted (the free part long enough).
+    pub linear: bool,
+    /// Robust σ of the free deflection about the baseline (m).
+    pub noise_m: f64,
+    /// Rows of the free part used.
+    pub free_rows: Range<usize>,
+}
+
+impl Baseline {
+    /// D₀ at base position `u`.
+    pub fn at(&self, u: f64) -> f64 {
+        self.offset_m + self.tilt * (u - self.u_ref_m)
+    }
+}
+
+/// What `identify` finds in a force curve.
+#[derive(Clone, Debug)]
+pub struct ForceCurveFit {
+    /// Rows of the approach (the first `extend` segment).
+    pub approach: Range<usize>,
+    /// The free deflection.
+    pub baseline: Baseline,
+    /// Contact height h: the tip position Z where the force starts (m).
+    pub contact_height_m: f64,
+    /// First row of the approach with the tip below h.
+    pub contact_row: usize,
+    /// Time of that row (s).
+    pub contact_t_s: f64,
+    /// U at that row (m).
+    pub contact_u_m: f64,
+    /// First row of the approach past the n·σ threshold (for good).
+    pub threshold_row: usize,
+    /// Per-area spring of the bed k_a (N/m³).
+    pub k_a_n_per_m3: f64,
+    /// Exponent p of F ∝ δ^p on the approach (10–90 % of its force); the element bed gives 2
+    /// for δ ≪ R, Hertz 1.5.
+    pub onset_exponent: f64,
+    /// Per-area damper c_a (N·s/m³).
+    pub c_a_ns_per_m3: f64,
+    /// Largest depth reached, δ_max = h − Z (m), smoothed over 5 samples.
+    pub max_depth_m: f64,
+    /// Largest force −K·(D − D₀) (N), smoothed over 5 samples.
+    pub max_force_n: f64,
+    /// Force range max − min (N).
+    pub force_range_n: f64,
+    /// Deflection range of the recording (m).
+    pub deflection_range_m: f64,
+    /// Tangent stiffness at δ_max, k_a·A(δ_max) (N/m).
+    pub k_n_per_m: f64,
+    /// Damping at δ_max, c_a·A(δ_max) (N·s/m).
+    pub c_ns_per_m: f64,
+    /// Elements under the tip at δ_max, A/pitch².
+    pub elements_at_max: f64,
+    /// Element pitch used for per-element values (m).
+    pub pitch_m: f64,
+    /// Filter time constant λ of the regression (s).
+    pub lambda_s: f64,
+    /// Simulated D per row (m).
+    pub simulated_d_m: Vec<f64>,
+    /// RMS of recorded − simulated D over all rows (m).
+    pub rms_misfit_m: f64,
+    /// RMS misfit while the model or the data is in contact (m).
+    pub rms_misfit_contact_m: f64,
+    /// Per segment: number, kind, rows, RMS misfit (m).
+    pub segments: Vec<(i64, String, usize, f64)>,
+    /// Largest inertial and damping forces of the cantilever under the assumptions given.
+    pub dynamics: Dynamics,
+    /// The vendor's force channel against −K·D: largest difference (N) and channel range (N).
+    pub vendor_force: Option<(f64, f64)>,
+    /// Remarks for the report.
+    pub notes: Vec<String>,
+}
+
+/// Bounds on the cantilever forces the quasi-static law leaves out.
+#[derive(Clone, Debug)]
+pub struct Dynamics {
+    /// f₀ used (Hz) and where it comes from.
+    pub f0_hz: f64,
+    /// Q used.
+    pub q: f64,
+    /// Source of f₀ and Q.
+    pub source: &'static str,
+    /// Largest M·|Z̈| (N).
+    pub inertial_n: f64,
+    /// Largest C·|Ḋ| (N).
+    pub damping_n: f64,
+}
+
+/// A lower bound on f₀ and Q for levers used in force spectroscopy in liquid (soft levers of
+/// 0.01–0.1 N/m have f₀ of a few kHz in water, Q ≈ 1–3): the worst case for the bounds.
+const ASSUMED_F0_HZ: f64 = 1e3;
+const ASSUMED_Q: f64 = 0.5;
+
+/// Identifies a force curve held in memory.
+pub fn identify(rec: &Recording, path: &Path, opts: &Options) -> Result<ForceCurveFit> {
+    let n = rec.len();
+    if n < 20 {
+        return Err(IdentifyError::new(
+            path,
+            format!("a force curve needs at least 20 samples, the recording has {n}"),
+        ));
+    }
+    let k_cant = rec.meta.cantilever_k_n_per_m;
+    let r = rec.meta.tip_radius_m;
+    let t = &rec.t_s;
+    let u = &rec.u_m;
+    let d = &rec.d_m;
+    let approach = find_approach(rec, path)?;
+    let mut notes = Vec::new();
+
+    // Baseline and threshold, iterated: the free part ends before the contact found.
+    let len = approach.len();
+    let mut free_end = approach.start + len / 2;
+    let mut baseline;
+    let mut crossing;
+    let mut iterations = 0;
+    loop {
+        baseline = fit_baseline(u, d, approach.start..free_end);
+        crossing = threshold_crossing(u, d, &baseline, &approach, opts.contact_sigma)
+            .map_err(|e| IdentifyError::new(path, e))?;
+        let (i_cross, i_zero) = crossing;
+        let guard = (2 * (i_cross - i_zero)).max(len / 20).max(10);
+        let new_end = i_zero.saturating_sub(guard).max(approach.start);
+        iterations += 1;
+        if new_end < approach.start + 5 {
+            return Err(IdentifyError::new(
+                path,
+                format!(
+                    "no free baseline before contact: the deflection leaves its free level \
+                     {} rows into the approach (row {})",
+                    i_zero - approach.start,
+                    i_zero + 1
+                ),
+            )
+            .with_fix("record the approach from further away from the sample"));
+        }
+        if new_end.abs_diff(free_end) <= len / 200 || iterations >= 6 {
+            free_end = new_end;
+            baseline = fit_baseline(u, d, approach.start..free_end);
+            crossing = threshold_crossing(u, d, &baseline, &approach, opts.contact_sigma)
+                .map_err(|e| IdentifyError::new(path, e))?;
+            break;
+        }
+        free_end = new_end;
+    }
+    let (i_cross, i_zero) = crossing;
+
+    // Force and tip position against the baseline.
+    let force: Vec<f64> = (0..n)
+        .map(|i| -k_cant * (d[i] - baseline.at(u[i])))
+        .collect();
+    let z: Vec<f64> = (0..n).map(|i| u[i] - (d[i] - baseline.at(u[i]))).collect();
+    let z_s = moving_average(&z, 2);
+    let dt_max = t.windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max);
+    let lambda = (4.0 * dt_max).max(0.01);
+
+    // The contact height: search the residual between the threshold and twice the distance
+    // back to where the deflection left zero.
+    let z_lo = z_s[i_cross];
+    let back = (2 * (i_cross - i_zero)).max(10);
+    let i_hi = i_zero.saturating_sub(back).max(baseline.free_rows.end);
+    let mut z_hi = z_s[i_hi];
+    if !(z_hi > z_lo) {
+        z_hi = z_lo + 10.0 * baseline.noise_m.max(1e-10);
+    }
+    // Rows of the fit: the approach, and the retract while the sample still pushes. Holds are
+    // left out (a Kelvin–Voigt bed cannot relax at constant depth, and a hold is where that
+    // shows), and so is the pull on the retract (adhesion, which the model has no term for);
+    // both stay in the misfit.
+    let kinds = row_kinds(rec, &approach);
+    let mask: Vec<bool> = (0..n)
+        .map(|i| match kinds[i] {
+            RowKind::Approach => true,
+            RowKind::Retract => force[i] > 0.0,
+            RowKind::Hold | RowKind::Other => false,
+        })
+        .collect();
+    let fit_at = |h: f64| regress(t, &force, &z, h, r, lambda, &mask);
+    // Refined: the height that minimises the fit's residual, between the threshold crossing
+    // (the force is past n·σ there: the contact is no later) and twice the distance back to
+    // where the deflection left its free level.
+    let h = minimize(|h| fit_at(h).2, z_lo, z_hi, 48);
+    // The onset's power law F ∝ δ^p on the approach between 10 % and 90 % of its largest force.
+    let exponent = onset_exponent(&force, &z, h, &approach);
+    let (k_a, c_a, _) = fit_at(h);
+    if !(k_a > 0.0) {
+        return Err(IdentifyError::new(
+            path,
+            format!("the contact part gives no positive stiffness (k_a = {k_a:e} N/m³)"),
+        ));
+    }
+    let span = z_hi - z_lo;
+    if (h - z_hi).abs() < 0.02 * span {
+        notes.push(
+            "the contact height sits at the early end of its search range: the force rises \
+             gradually before the threshold (long-range forces, a soft surface layer?)"
+                .to_string(),
+        );
+    } else if (h - z_lo).abs() < 0.02 * span {
+        notes.push(format!(
+            "the contact height sits at the threshold crossing, the latest the data allow: \
+             the element bed's V(δ) ∝ δ² onset would prefer a later contact, so the force \
+             rises differently at first (F ∝ δ^{exponent:.2} on the approach, the bed gives 2)"
+        ));
+    }
+    let contact_row = (approach.start..approach.end)
+        .rev()
+        .find(|&i| z_s[i] >= h)
+        .map_or(approach.start, |i| i + 1);
+    if contact_row <= baseline.free_rows.end || contact_row >= approach.end - 1 {
+        return Err(IdentifyError::new(
+            path,
+            format!(
+                "the contact point (row {}) is not inside the approach after its free part \
+                 (rows {}–{})",
+                contact_row + 1,
+                baseline.free_rows.end + 1,
+                approach.end
+            ),
+        ));
+    }
+
+    let depth: Vec<f64> = z.iter().map(|zz| h - zz).collect();
+    let max_depth = moving_average(&depth, 2)
+        .into_iter()
+        .fold(f64::NEG_INFINITY, f64::max);
+    let f_s = moving_average(&force, 2);
+    let max_force = f_s.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let min_force = f_s.iter().copied().fold(f64::INFINITY, f64::min);
+    let area = contact_area(r, max_depth);
+    let p = opts.element_pitch_m;
+
+    // The fit: the quasi-static law driven by the recorded U.
+    let sim = simulate(t, u, &baseline, k_cant, h, k_a, c_a, r);
+    let resid: Vec<f64> = (0..n).map(|i| d[i] - sim[i]).collect();
+    let rms_all = super::signal::rms(resid.iter().copied());
+    let in_contact = |i: usize| depth[i] > 0.0 || sim[i] - baseline.at(u[i]) < -1e-15;
+    let rms_contact = super::signal::rms((0..n).filter(|&i| in_contact(i)).map(|i| resid[i]));
+    let segments = segment_misfits(rec, &resid);
+    let (dmin, dmax) = d
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
+
+    // What the quasi-static law leaves out: bounds on M·Z̈ and C·Ḋ.
+    let dynamics = dynamics_bounds(rec, &z, &moving_average(d, 2));
+    let vendor_force = rec.extra_column("force_vendor_n").map(|f| {
+        let diff = d
+            .iter()
+            .zip(f)
+            .map(|(dd, fv)| (-k_cant * dd - fv).abs())
+            .fold(0.0, f64::max);
+        let range = f.iter().map(|x| x.abs()).fold(0.0, f64::max);
+        (diff, range)
+    });
+    if baseline.linear
+        && (baseline.tilt * (u[approach.start] - u[approach.end - 1])).abs()
+            > 3.0 * baseline.noise_m
+    {
+        notes.push(format!(
+            "the free deflection is tilted: {:.3e} m of D per m of U ({:.2} nm over the approach), \
+             subtracted as part of the baseline",
+            baseline.tilt,
+            (baseline.tilt * (u[approach.start] - u[approach.end - 1])).abs() * 1e9
+        ));
+    }
+
+    Ok(ForceCurveFit {
+        approach,
+        baseline,
+        contact_height_m: h,
+        contact_row,
+        contact_t_s: t[contact_row],
+        contact_u_m: u[contact_row],
+        threshold_row: i_cross,
+        k_a_n_per_m3: k_a,
+        onset_exponent: exponent,
+        c_a_ns_per_m3: c_a,
+        max_depth_m: max_depth,
+        max_force_n: max_force,
+        force_range_n: max_force - min_force,
+        deflection_range_m: dmax - dmin,
+        k_n_per_m: k_a * area,
+        c_ns_per_m: c_a * area,
+        elements_at_max: area / (p * p),
+        pitch_m: p,
+        lambda_s: lambda,
+        simulated_d_m: sim,
+        rms_misfit_m: rms_all,
+        rms_misfit_contact_m: rms_contact,
+        segments,
+        dynamics,
+        vendor_force,
+        notes,
+    })
+}
+
+/// The `segment` column and the `# segments:` line's (number, kind) pairs.
+type Segments = (Vec<f64>, Vec<(i64, String)>);
+
+/// Segment numbers and kinds from the `segment` column and the `# segments:` line.
+fn segment_kinds(rec: &Recording) -> Option<Segments> {
+    let seg = rec.extra_column("segment")?.to_vec();
+    let kinds = rec
+        .meta
+        .get("segments")
+        .map(|s| {
+            s.split(',')
+                .filter_map(|p| {
+                    let (num, kind) = p.split_once('=')?;
+                    Some((num.trim().parse::<i64>().ok()?, kind.trim().to_string()))
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    Some((seg, kinds))
+}
+
+/// The approach: the first `extend` segment, or, without segments, the rows from the start to
+/// the lowest base position.
+fn find_approach(rec: &Recording, path: &Path) -> Result<Range<usize>> {
+    let n = rec.len();
+    let range = match segment_kinds(rec) {
+        Some((seg, kinds)) if !kinds.is_empty() => {
+            let extend: Vec<i64> = kinds
+                .iter()
+                .filter(|(_, k)| k == "extend" || k == "approach")
+                .map(|(num, _)| *num)
+                .collect();
+            let Some(start) = seg.iter().position(|s| extend.contains(&(*s as i64))) else {
+                let list: Vec<String> = kinds.iter().map(|(n, k)| format!("{n}={k}")).collect();
+                return Err(IdentifyError::new(
+                    path,
+                    format!(
+                        "a force curve without an approach: no `extend` segment among {}",
+                        list.join(",")
+                    ),
+                )
+                .with_fix("identify needs the approach to find the contact point"));
+            };
+            let s0 = seg[start];
+            let end = start + seg[start..].iter().take_while(|&&s| s == s0).count();
+            start..end
+        }
+        _ => {
+            let us = moving_average(&rec.u_m, 5);
+            let (imin, _) = us
+                .iter()
+                .enumerate()
+                .fold(
+                    (0, f64::INFINITY),
+                    |acc, (i, &v)| if v < acc.1 { (i, v) } else { acc },
+                );
+            0..imin + 1
+        }
+    };
+    let u = &rec.u_m[range.clone()];
+    let travel = u.first().copied().unwrap_or(0.0) - u.last().copied().unwrap_or(0.0);
+    if range.len() < 20 || !(travel > 0.0) {
+        return Err(IdentifyError::new(
+            path,
+            format!(
+                "a force curve without an approach: {} rows in which U falls by {:.3e} m",
+                range.len(),
+                travel
+            ),
+        )
+        .with_fix("the approach moves the base towards the sample (U decreasing, z up)"));
+    }
+    debug_assert!(range.end <= n);
+    Ok(range)
+}
+
+/// Least-squares offset (and tilt, when the free part spans enough rows) of D against U.
+fn fit_baseline(u: &[f64], d: &[f64], rows: Range<usize>) -> Baseline {
+    let uu = &u[rows.clone()];
+    let dd = &d[rows.clone()];
+    let n = uu.len() as f64;
+    let u_ref = *uu.last().unwrap_or(&0.0);
+    let linear = uu.len() >= 50;
+    let (offset, tilt) = if linear {
+        let mu = uu.iter().map(|x| x - u_ref).sum::<f64>() / n;
+        let md = dd.iter().sum::<f64>() / n;
+        let (mut sxx, mut sxy) = (0.0, 0.0);
+        for (x, y) in uu.iter().zip(dd) {
+            let dx = x - u_ref - mu;
+            sxx += dx * dx;
+            sxy += dx * (y - md);
+        }
+        let tilt = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+        (md - tilt * mu, tilt)
+    } else {
+        (dd.iter().sum::<f64>() / n.max(1.0), 0.0)
+    };
+    let resid: Vec<f64> = uu
+        .iter()
+        .zip(dd)
+        .map(|(x, y)| y - offset - tilt * (x - u_ref))
+        .collect();
+    Baseline {
+        offset_m: offset,
+        tilt,
+        u_ref_m: u_ref,
+        linear,
+        noise_m: robust_sigma(&resid),
+        free_rows: rows,
+    }
+}
+
+/// `(i_cross, i_zero)`: the first row of the approach from which the deflection stays below
+/// −n·σ to the end, and the last row before it at or above the baseline.
+fn threshold_crossing(
+    u: &[f64],
+    d: &[f64],
+    b: &Baseline,
+    approach: &Range<usize>,
+    n_sigma: f64,
+) -> std::result::Result<(usize, usize), String> {
+    let thr = -n_sigma * b.noise_m.max(1e-13);
+    let dt = |i: usize| d[i] - b.at(u[i]);
+    let last = approach.end - 1;
+    if dt(last) >= thr {
+        return Err(format!(
+            "no contact on the approach: the deflection at its end ({:.3e} m below the free \
+             level) does not pass {n_sigma}σ = {:.3e} m",
+            -dt(last),
+            -thr
+        ));
+    }
+    let Some(i_above) = (approach.start..last).rev().find(|&i| dt(i) >= thr) else {
+        return Err(
+            "the approach starts in contact: its deflection is past the threshold from \
+                    its first row"
+                .to_string(),
+        );
+    };
+    let i_cross = i_above + 1;
+    let i_zero = (approach.start..i_cross)
+        .rev()
+        .find(|&i| dt(i) >= 0.0)
+        .unwrap_or(approach.start);
+    Ok((i_cross, i_zero))
+}
+
+/// (k_a, c_a, residual sum of squares) of the filtered regression at contact height `h`.
+fn regress(
+    t: &[f64],
+    force: &[f64],
+    z: &[f64],
+    h: f64,
+    r: f64,
+    lambda: f64,
+    mask: &[bool],
+) -> (f64, f64, f64) {
+    let n = t.len();
+    let mut ff = FohLowPass::new(lambda, force[0]);
+    let v0 = cap_volume(r, h - z[0]);
+    let mut vf = FohLowPass::new(lambda, v0);
+    // Normal equations for y = a·x1 + b·x2, accumulated with y², in scaled units.
+    let (mut s11, mut s12, mut s22, mut s1y, mut s2y, mut syy) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let warm = t[0] + 3.0 * lambda;
+    for i in 1..n {
+        let dt = t[i] - t[i - 1];
+        let v = cap_volume(r, h - z[i]);
+        let y = ff.update(dt, force[i]);
+        let x1 = vf.update(dt, v);
+        let x2 = (v - x1) / lambda;
+        if t[i] < warm || !mask[i] {
+            continue;
+        }
+        s11 += x1 * x1;
+        s12 += x1 * x2;
+        s22 += x2 * x2;
+        s1y += x1 * y;
+        s2y += x2 * y;
+        syy += y * y;
+    }
+    if !(s11 > 0.0) {
+        return (0.0, 0.0, syy);
+    }
+    // Solve with both columns scaled to unit norm; c_a ≥ 0 (projection onto the face).
+    let (n1, n2) = (s11.sqrt(), s22.sqrt().max(f64::MIN_POSITIVE));
+    let (a11, a12, a22) = (1.0, s12 / (n1 * n2), s22 / (n2 * n2));
+    let (b1, b2) = (s1y / n1, s2y / n2);
+    let det = a11 * a22 - a12 * a12;
+    let (mut ka, mut ca) = if det > 1e-12 {
+        (
+            (a22 * b1 - a12 * b2) / det / n1,
+            (a11 * b2 - a12 * b1) / det / n2,
+        )
+    } else {
+        (b1 / n1, 0.0)
+    };
+    if ca < 0.0 {
+        ca = 0.0;
+        ka = s1y / s11;
+    }
+    let rss =
+        syy - 2.0 * (ka * s1y + ca * s2y) + ka * ka * s11 + 2.0 * ka * ca * s12 + ca * ca * s22;
+    (ka, ca, rss.max(0.0))
+}
+
+/// The quasi-static law driven by U: D per row (m).
+#[allow(clippy::too_many_arguments)]
+fn simulate(
+    t: &[f64],
+    u: &[f64],
+    b: &Baseline,
+    k: f64,
+    h: f64,
+    k_a: f64,
+    c_a: f64,
+    r: f64,
+) -> Vec<f64> {
+    let n = t.len();
+    let mut out = Vec::with_capacity(n);
+    let mut delta = 0.0f64; // apex depth, ≥ 0 (0 when free)
+    for i in 0..n {
+        let dt = if i == 0 {
+            f64::INFINITY
+        } else {
+            t[i] - t[i - 1]
+        };
+        // Damping coefficient over this step, from the area at the start of it (semi-implicit).
+        let cd = if dt.is_finite() {
+            c_a * contact_area(r, delta) / dt
+        } else {
+            0.0
+        };
+        let g = |x: f64| k * (x - h + u[i]) + k_a * cap_volume(r, x) + cd * (x - delta);
+        let new = if g(0.0) < 0.0 {
+            // g increases with x: bracket and solve.
+            let mut hi = (h - u[i]).max(delta).max(1e-12);
+            while g(hi) < 0.0 {
+                hi *= 2.0;
+            }
+            let mut lo = 0.0;
+            let mut x = delta.clamp(lo, hi);
+            for _ in 0..100 {
+                let gx = g(x);
+                if gx > 0.0 {
+                    hi = x;
+                } else {
+                    lo = x;
+                }
+                let slope = k + k_a * contact_area(r, x) + cd;
+                let mut next = x - gx / slope;
+                if !(next > lo && next < hi) {
+                    next = 0.5 * (lo + hi);
+                }
+                if (next - x).abs() <= 1e-15 * (1.0 + x.abs()) || hi - lo < 1e-16 {
+                    x = next;
+                    break;
+                }
+                x = next;
+            }
+            x
+        } else {
+            0.0
+        };
+        delta = new;
+        let d_true = if new > 0.0 { new - h + u[i] } else { 0.0 };
+        out.push(d_true + b.at(u[i]));
+    }
+    out
+}
+
+/// RMS misfit per segment: (number, kind, rows, rms).
+fn segment_misfits(rec: &Recording, resid: &[f64]) -> Vec<(i64, String, usize, f64)> {
+    let Some((seg, kinds)) = segment_kinds(rec) else {
+        return Vec::new();
+    };
+    let mut out: Vec<(i64, String, usize, f64)> = Vec::new();
+    let mut i = 0;
+    while i < seg.len() {
+        let s = seg[i];
+        let j = i + seg[i..].iter().take_while(|&&x| x == s).count();
+        let num = s as i64;
+        let kind = kinds
+            .iter()
+            .find(|(n, _)| *n == num)
+            .map(|(_, k)| k.clone())
+            .unwrap_or_else(|| "unknown".into());
+        out.push((
+            num,
+            kind,
+            j - i,
+            super::signal::rms(resid[i..j].iter().copied()),
+        ));
+        i = j;
+    }
+    out
+}
+
+fn dynamics_bounds(rec: &Recording, z: &[f64], d_s: &[f64]) -> Dynamics {
+    let k = rec.meta.cantilever_k_n_per_m;
+    let (f0, q, source) = match (
+        rec.meta.cantilever_m_kg,
+        rec.meta.cantilever_c_ns_per_m,
+        rec.meta.cantilever_f0_hz,
+        rec.meta.cantilever_q,
+    ) {
+        (Some(m), Some(c), _, _) if c > 0.0 => {
+            let w = (k / m).sqrt();
+            (
+                w / (2.0 * std::f64::consts::PI),
+                (k * m).sqrt() / c,
+                "recording",
+            )
+        }
+        (_, _, Some(f0), Some(q)) => (f0, q, "recording"),
+        _ => (ASSUMED_F0_HZ, ASSUMED_Q, "assumed (worst case for liquid)"),
+    };
+    let w0 = 2.0 * std::f64::consts::PI * f0;
+    let m = k / (w0 * w0);
+    let c = (k * m).sqrt() / q;
+    // Derivatives over ±5 ms of smoothed signals: the motions are slow, the noise is not.
+    let t = &rec.t_s;
+    let n = t.len();
+    let dt = (t[n - 1] - t[0]) / (n - 1).max(1) as f64;
+    let w = ((5e-3 / dt).round() as usize).clamp(1, n / 4 + 1);
+    let zs = moving_average(z, w);
+    let ds = moving_average(d_s, w);
+    let deriv = |x: &[f64], i: usize| {
+        let (a, b) = (i.saturating_sub(w), (i + w).min(n - 1));
+        (x[b] - x[a]) / (t[b] - t[a])
+    };
+    let vz: Vec<f64> = (0..n).map(|i| deriv(&zs, i)).collect();
+    let (mut acc, mut vel) = (0.0f64, 0.0f64);
+    for i in 0..n {
+        acc = acc.max(deriv(&vz, i).abs());
+        vel = vel.max(deriv(&ds, i).abs());
+    }
+    Dynamics {
+        f0_hz: f0,
+        q,
+        source,
+        inertial_n: m * acc,
+        damping_n: c * vel,
+    }
+}
+
+impl ForceCurveFit {
+    /// The report's mode-specific part.
+    pub fn to_json(&self, rec: &Recording) -> Json {
+        let b = &self.baseline;
+        let dyn_ = &self.dynamics;
+        let worst = dyn_.inertial_n.max(dyn_.damping_n);
+        let mut j = Json::obj()
+            .with(
+                "model",
+                "quasi-static sphere on a Kelvin–Voigt element bed: F = k_a·V(δ) + c_a·A(δ)·dδ/dt, \
+                 V = πδ²(R − δ/3) (πR²(δ − R/3) past the equator), A = πa², F = −K·(D − D₀(U))",
+            )
+            .with(
+                "cantilever_dynamics",
+                Json::obj()
+                    .with("neglected", true)
+                    .with(
+                        "why",
+                        format!(
+                            "quasi-static: the largest inertial force M·|Z̈| ({:.2e} N) and \
+                             damping force C·|Ḋ| ({:.2e} N) are {:.1e} of the force range \
+                             ({:.2e} N); f0 = {} Hz, Q = {} ({})",
+                            dyn_.inertial_n,
+                            dyn_.damping_n,
+                            worst / self.force_range_n,
+                            self.force_range_n,
+                            dyn_.f0_hz,
+                            dyn_.q,
+                            dyn_.source
+                        ),
+                    )
+                    .with("inertial_force_max_n", dyn_.inertial_n)
+                    .with("damping_force_max_n", dyn_.damping_n)
+                    .with("f0_hz", dyn_.f0_hz)
+                    .with("q", dyn_.q)
+                    .with("f0_q_source", dyn_.source),
+            )
+            .with(
+                "approach",
+                Json::obj()
+                    .with("rows", vec![self.approach.start as f64 + 1.0, self.approach.end as f64])
+                    .with("t_start_s", rec.t_s[self.approach.start])
+                    .with("t_end_s", rec.t_s[self.approach.end - 1]),
+            )
+            .with(
+                "baseline",
+                Json::obj()
+                    .with("kind", if b.linear { "offset + linear tilt in U" } else { "offset" })
+                    .with("offset_m", b.offset_m)
+                    .with("tilt_m_per_m", b.tilt)
+                    .with("u_ref_m", b.u_ref_m)
+                    .with("noise_m", b.noise_m)
+                    .with(
+                        "free_rows",
+                        vec![b.free_rows.start as f64 + 1.0, b.free_rows.end as f64],
+                    ),
+            )
+            .with(
+                "contact",
+                Json::obj()
+                    .with("height_m", self.contact_height_m)
+                    .with("row", self.contact_row + 1)
+                    .with("t_s", self.contact_t_s)
+                    .with("u_m", self.contact_u_m)
+                    .with("threshold_row", self.threshold_row + 1)
+                    .with(
+                        "method",
+                        "baseline on the free approach, last crossing of n·σ, refined by the \
+                         least-squares residual of the full Kelvin–Voigt fit",
+                    )
+                    .with("inside_approach", true),
+            )
+            .with("k_a_n_per_m3", self.k_a_n_per_m3)
+            .with(
+                "fit_rows",
+                "the approach and the retract while the sample pushes; holds and pull-off are \
+                 left to the misfit",
+            )
+            .with("approach_force_depth_exponent", self.onset_exponent)
+            .with("c_a_ns_per_m3", self.c_a_ns_per_m3)
+            .with(
+                "relaxation_time_s",
+                if self.k_a_n_per_m3 > 0.0 {
+                    self.c_a_ns_per_m3 / self.k_a_n_per_m3
+                } else {
+                    f64::NAN
+                },
+            )
+            .with("max_depth_m", self.max_depth_m)
+            .with("max_force_n", self.max_force_n)
+            .with("force_range_n", self.force_range_n)
+            .with("element_pitch_m", self.pitch_m)
+            .with("filter_lambda_s", self.lambda_s);
+        if let Some((diff, range)) = self.vendor_force {
+            j.set(
+                "vendor_force",
+                Json::obj()
+                    .with("column", "force_vendor_n")
+                    .with("max_abs_difference_n", diff)
+                    .with("max_abs_vendor_n", range)
+                    .with("matches", diff <= 1e-9 * range.max(1e-30)),
+            );
+        }
+        j
+    }
+
+    /// The one "tap" of a force curve: the values at the deepest point.
+    pub fn tap_json(&self) -> Json {
+        let p2 = self.pitch_m * self.pitch_m;
+        Json::obj()
+            .with("contact_height_m", self.contact_height_m)
+            .with("c_ns_per_m", self.c_ns_per_m)
+            .with("k_n_per_m", self.k_n_per_m)
+            .with("depth_m", self.max_depth_m)
+            .with("elements_under_tip", self.elements_at_max)
+            .with("c_element_ns_per_m", self.c_a_ns_per_m3 * p2)
+            .with("k_element_n_per_m", self.k_a_n_per_m3 * p2)
+            .with(
+                "note",
+                "aggregate values are the tangent k = k_a·A and c = c_a·A at the deepest point",
+            )
+    }
+
+    /// The fit's summary.
+    pub fn fit_json(&self) -> Json {
+        Json::obj()
+            .with(
+                "model",
+                "the quasi-static law with the identified h, k_a, c_a and baseline, driven by the \
+                 recorded U",
+            )
+            .with("rms_misfit_m", self.rms_misfit_m)
+            .with("rms_misfit_contact_m", self.rms_misfit_contact_m)
+            .with(
+                "rms_misfit_over_noise",
+                self.rms_misfit_m / self.baseline.noise_m,
+            )
+            .with("deflection_range_m", self.deflection_range_m)
+            .with(
+                "segments",
+                Json::Arr(
+                    self.segments
+                        .iter()
+                        .map(|(n, k, rows, rms)| {
+                            Json::obj()
+                                .with("segment", *n as f64)
+                                .with("kind", k.as_str())
+                                .with("rows", *rows)
+                                .with("rms_misfit_m", *rms)
+                        })
+                        .collect(),
+                ),
+            )
+    }
+
+    /// The recorded and simulated series, one row per sample.
+    pub fn series_csv(&self, rec: &Recording) -> String {
+        let seg = rec.extra_column("segment");
+        let mut s = String::from(
+            "# visco identify: force-curve fit, recorded vs simulated deflection\n\
+             t_s,u_m,d_recorded_m,d_simulated_m,residual_m,segment\n",
+        );
+        for i in 0..rec.len() {
+            for v in [
+                rec.t_s[i],
+                rec.u_m[i],
+                rec.d_m[i],
+                self.simulated_d_m[i],
+                rec.d_m[i] - self.simulated_d_m[i],
+            ] {
+                super::files::push_num(&mut s, v);
+                s.push(',');
+            }
+            super::files::push_num(&mut s, seg.map_or(f64::NAN, |c| c[i]));
+            s.push('\n');
+        }
+        s
+    }
+}
+
+/// Minimum of `f` on `[lo, hi]`: a grid of `grid` intervals, then golden section around the
+/// best grid point.
+fn minimize(f: impl Fn(f64) -> f64, lo: f64, hi: f64, grid: usize) -> f64 {
+    let xs: Vec<f64> = (0..=grid)
+        .map(|j| lo + (hi - lo) * j as f64 / grid as f64)
+        .collect();
+    let mut best = (f64::INFINITY, 0usize);
+    for (j, &x) in xs.iter().enumerate() {
+        let v = f(x);
+        if v < best.0 {
+            best = (v, j);
+        }
+    }
+    let (mut a, mut b) = (xs[best.1.saturating_sub(1)], xs[(best.1 + 1).min(grid)]);
+    let g = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
+    let (mut f1, mut f2) = (f(x1), f(x2));
+    for _ in 0..40 {
+        if f1 < f2 {
+            b = x2;
+            x2 = x1;
+            f2 = f1;
+            x1 = b - g * (b - a);
+            f1 = f(x1);
+        } else {
+            a = x1;
+            x1 = x2;
+            f1 = f2;
+            x2 = a + g * (b - a);
+            f2 = f(x2);
+        }
+    }
+    let x = 0.5 * (a + b);
+    if f(x) <= best.0 {
+        x
+    } else {
+        xs[best.1]
+    }
+}
+
+/// What a row of a force curve is doing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum RowKind {
+    Approach,
+    Hold,
+    Retract,
+    Other,
+}
+
+/// Each row's kind: the approach found, `pause`/`hold`/`dwell` segments, `retract` segments;
+/// without segments, everything after the approach is the retract.
+fn row_kinds(rec: &Recording, approach: &Range<usize>) -> Vec<RowKind> {
+    let n = rec.len();
+    match segment_kinds(rec) {
+        Some((seg, kinds)) if !kinds.is_empty() => (0..n)
+            .map(|i| {
+                if approach.contains(&i) {
+                    return RowKind::Approach;
+                }
+                match kinds.iter().find(|(num, _)| *num == seg[i] as i64) {
+                    Some((_, k)) if k == "retract" => RowKind::Retract,
+                    Some((_, k)) if k == "pause" || k == "hold" || k == "dwell" => RowKind::Hold,
+                    _ => RowKind::Other,
+                }
+            })
+            .collect(),
+        _ => (0..n)
+            .map(|i| {
+                if approach.contains(&i) {
+                    RowKind::Approach
+                } else if i >= approach.end {
+                    RowKind::Retract
+                } else {
+                    RowKind::Other
+                }
+            })
+            .collect(),
+    }
+}
+
+/// Least-squares slope of log F against log δ on the approach where F is between 10 % and
+/// 90 % of its largest value (NaN with fewer than 5 such rows).
+fn onset_exponent(force: &[f64], z: &[f64], h: f64, approach: &Range<usize>) -> f64 {
+    let f_top = approach.clone().map(|i| force[i]).fold(0.0, f64::max);
+    let pts: Vec<(f64, f64)> = approach
+        .clone()
+        .filter(|&i| force[i] > 0.1 * f_top && force[i] < 0.9 * f_top && h - z[i] > 0.0)
+        .map(|i| ((h - z[i]).ln(), force[i].ln()))
+        .collect();
+    if pts.len() < 5 {
+        return f64::NAN;
+    }
+    let m = pts.len() as f64;
+    let (mx, my) = (
+        pts.iter().map(|p| p.0).sum::<f64>() / m,
+        pts.iter().map(|p| p.1).sum::<f64>() / m,
+    );
+    let (mut sxx, mut sxy) = (0.0, 0.0);
+    for (x, y) in &pts {
+        sxx += (x - mx) * (x - mx);
+        sxy += (x - mx) * (y - my);
+    }
+    if sxx > 0.0 {
+        sxy / sxx
+    } else {
+        f64::NAN
+    }
+}
