@@ -108,7 +108,8 @@ pub struct PlantConfig {
 impl PlantConfig {
     /// The paper's simulation (section 5.1): f0 = 20 kHz, K = 0.18 N/m, C = 1.48×10⁻⁸ N·s/m,
     /// M = 1.18×10⁻¹¹ kg (Q = 100), R = 300 nm, 300 K; with the measurement realism of a real
-    /// instrument on: thermal noise, 16-bit ADC over ±1 µm, 16-bit Z DAC over ±3 µm (the piezo
+    /// instrument on: thermal noise, 16-bit ADC over ±2.5 µm (the paper's DIVE swings D by ±1.2 µm
+    /// around −0.2 µm; the core's `Config::paper` has the same range), 16-bit Z DAC over ±3 µm (the piezo
     /// travel), 16-bit lateral DACs over −2.5…7.5 µm (a 10 µm scanner centred on the 5 µm
     /// sample, 0.15 nm LSB); 1 µs step (1 MHz loop).
     ///
@@ -120,7 +121,7 @@ impl PlantConfig {
             tip_radius_m: 300e-9,
             temperature_k: 300.0,
             thermal_noise: true,
-            adc_deflection: Converter::bipolar16(1e-6),
+            adc_deflection: Converter::bipolar16(2.5e-6),
             dac_z: Converter::bipolar16(3e-6),
             dac_xy: Converter {
                 min_m: -2.5e-6,
