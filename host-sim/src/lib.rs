@@ -6,5 +6,6 @@ pub mod experiment;
 pub mod output;
 pub mod plant;
 pub mod recording;
+pub mod replay;
 pub mod sample;
 pub mod telemetry;

@@ -339,6 +339,122 @@ pub struct ReplayOutput {
     pub elapsed: Duration,
 }
 
+/// Compares per-sample outputs bit for bit; the first differing sample index and a
+/// description, or `None` when identical (lengths included).
+pub fn first_difference(a: &[StepFrame], b: &[StepFrame]) -> Option<(usize, String)> {
+    let bits = |s: &StepFrame| {
+        (
+            s.index,
+            s.d_m.to_bits(),
+            s.u_code,
+            s.dac_word,
+            s.u_m.to_bits(),
+            s.x_m.to_bits(),
+            s.y_m.to_bits(),
+            s.status,
+            s.estimates.map(f32::to_bits),
+        )
+    };
+    for (i, (x, y)) in a.iter().zip(b).enumerate() {
+        if bits(x) != bits(y) {
+            return Some((i, format!("firmware {x:?}\n host    {y:?}")));
+        }
+    }
+    if a.len() != b.len() {
+        return Some((
+            a.len().min(b.len()),
+            format!("lengths differ: {} vs {}", a.len(), b.len()),
+        ));
+    }
+    None
+}
+
+/// Checks compact blocks against full frames computed elsewhere (the host): the blocks must
+/// cover every sample in order and each must match bit for bit. The first failing sample
+/// and why, or `None`.
+pub fn check_blocks(blocks: &[StepBlockFrame], reference: &[StepFrame]) -> Option<(usize, String)> {
+    let mut next = 0usize;
+    for b in blocks {
+        let first = b.first_index as usize;
+        let end = first + b.len as usize;
+        if first != next {
+            return Some((next, format!("samples {next}..{first} missing")));
+        }
+        match reference.get(first..end) {
+            Some(r) if b.matches(r) => {}
+            Some(r) => {
+                let at = (0..r.len()).find(|&i| {
+                    b.u_codes[i] != r[i].u_code.clamp(-32768, 32767) as i16
+                        || b.status[i] != r[i].status as u16
+                });
+                return Some((
+                    first,
+                    match at {
+                        Some(i) => format!(
+                            "sample {}: firmware u_code {} status {:#x}, host u_code {} status {:#x}",
+                            first + i,
+                            b.u_codes[i],
+                            b.status[i],
+                            r[i].u_code,
+                            r[i].status
+                        ),
+                        None => format!(
+                            "samples {first}..{end}: same DAC codes and status flags, different \
+                             digest (U in metres, X/Y, phase or estimates differ): rerun with \
+                             full per-sample frames"
+                        ),
+                    },
+                ));
+            }
+            None => return Some((first, format!("block {first}..{end} beyond the input"))),
+        }
+        next = end;
+    }
+    (next != reference.len()).then(|| (next, format!("samples {next}.. missing")))
+}
+
+/// Compares record frames bit for bit (NaN-safe); the first differing one, or `None`.
+pub fn first_record_difference(a: &[RecordFrame], b: &[RecordFrame]) -> Option<(usize, String)> {
+    let bits = |r: &RecordFrame| {
+        (
+            r.index,
+            r.mode,
+            r.number,
+            r.ix,
+            r.iy,
+            r.variant,
+            [
+                r.x_m,
+                r.y_m,
+                r.c_ns_per_m,
+                r.k_n_per_m,
+                r.height_m,
+                r.depth_m,
+                r.offset_n,
+                r.centre_m,
+            ]
+            .map(f32::to_bits),
+            r.flags,
+            r.samples,
+        )
+    };
+    for (i, (x, y)) in a.iter().zip(b).enumerate() {
+        if bits(x) != bits(y) {
+            return Some((i, format!("firmware {x:?}\n host    {y:?}")));
+        }
+    }
+    (a.len() != b.len()).then(|| {
+        (
+            a.len().min(b.len()),
+            format!(
+                "{} records from the firmware, {} from the host",
+                a.len(),
+                b.len()
+            ),
+        )
+    })
+}
+
 /// The QEMU target: an emulated `mps2-an500` running the firmware image, its UART0 on a
 /// Unix socket, and its semihosting (defmt) output in a file.
 #[cfg(unix)]
@@ -525,11 +641,23 @@ pub mod qemu {
             }
         }
 
-        /// Like [`Self::command`], but an error unless the firmware answered OK.
+        /// Like [`Self::command`], but an error unless the firmware answered OK (with the
+        /// field and reason when it refused a configuration).
         pub fn command_ok(&mut self, cmd: &Command) -> io::Result<()> {
             match self.command(cmd)? {
                 ack::OK => Ok(()),
-                code => Err(err(format!("firmware refused {cmd:?}: ack code {code}"))),
+                code => {
+                    let why = self.backlog.iter().rev().find_map(|m| match m {
+                        Telemetry::ConfigRejected(c) => {
+                            Some(format!(": `{}` = {}: {}", c.field(), c.value, c.reason()))
+                        }
+                        _ => None,
+                    });
+                    Err(err(format!(
+                        "firmware refused {cmd:?}: ack code {code}{}",
+                        why.unwrap_or_default()
+                    )))
+                }
             }
         }
 
@@ -547,15 +675,18 @@ pub mod qemu {
             }
         }
 
-        /// Feeds `input` sample by sample in `mode` and collects the per-sample outputs:
-        /// one Step frame per sample (`PerSample::Full`) or compact blocks
-        /// (`PerSample::Blocks`, ~10× fewer bytes). Sending runs on a second thread so the
-        /// firmware never waits for the host.
+        /// Feeds `input` sample by sample, starting `mode` first (or, with `None`, carrying
+        /// on where the core is), and collects the per-sample outputs: one Step frame per
+        /// sample (`PerSample::Full`) or compact blocks (`PerSample::Blocks`, ~10× fewer
+        /// bytes). Sending runs on a second thread so the firmware never waits for the host.
+        /// The core is stopped afterwards unless `keep_running` (a replay continued later,
+        /// e.g. by a bench over the next samples). Sample indices start at 0.
         pub fn replay(
             &mut self,
             input: ReplayInput<'_>,
-            mode: Mode,
+            mode: Option<Mode>,
             per_sample: PerSample,
+            keep_running: bool,
         ) -> io::Result<ReplayOutput> {
             let n = input.len();
             if per_sample == PerSample::Off {
@@ -566,7 +697,9 @@ pub mod qemu {
                 per_sample,
                 status_every: 0,
             })?;
-            self.command_ok(&Command::Start(mode))?;
+            if let Some(mode) = mode {
+                self.command_ok(&Command::Start(mode))?;
+            }
             let mut frames = Vec::with_capacity(n.div_ceil(MAX_FEED));
             let mut first = 0usize;
             while first < n {
@@ -647,12 +780,20 @@ pub mod qemu {
                     blocks.len()
                 )));
             }
-            self.command_ok(&Command::Stop)?;
+            // Records queued with the last samples come before the next command's Ack.
+            if !keep_running {
+                self.command_ok(&Command::Stop)?;
+            }
             self.command_ok(&Command::SetTelemetry {
                 per_sample: PerSample::Off,
                 status_every: 0,
             })?;
             let status = Some(self.status()?);
+            records.extend(self.backlog.iter().filter_map(|m| match m {
+                Telemetry::Record(r) => Some(*r),
+                _ => None,
+            }));
+            self.backlog.retain(|m| !matches!(m, Telemetry::Record(_)));
             Ok(ReplayOutput {
                 steps,
                 blocks,
@@ -677,14 +818,26 @@ pub mod qemu {
             Ok(())
         }
 
-        /// One closed-loop sample (see [`Self::start_lockstep`]).
+        /// One closed-loop sample (see [`Self::start_lockstep`]): the deflection in metres,
+        /// handed to `step` as it is.
         pub fn lockstep(&mut self, d_m: f32) -> io::Result<StepFrame> {
             let mut m = [0f32; MAX_FEED];
             m[0] = d_m;
+            self.lockstep_feed(FeedSamples::Metres(m))
+        }
+
+        /// One closed-loop sample as an ADC code, converted by the firmware's ADC path.
+        pub fn lockstep_code(&mut self, code: i16) -> io::Result<StepFrame> {
+            let mut c = [0i16; MAX_FEED];
+            c[0] = code;
+            self.lockstep_feed(FeedSamples::Codes(c))
+        }
+
+        fn lockstep_feed(&mut self, samples: FeedSamples) -> io::Result<StepFrame> {
             self.writer.send(&Command::Feed(FeedBlock {
                 first_index: self.lockstep_index,
                 len: 1,
-                samples: FeedSamples::Metres(m),
+                samples,
             }))?;
             loop {
                 match self.next_message()? {

@@ -7,6 +7,7 @@
 //! `RecordingError` already read `FILE:LINE: reason (fix: ...)`.
 
 mod import;
+mod replay;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -26,6 +27,9 @@ struct Cli {
 enum Command {
     /// Convert a vendor force-curve file (JPK, AFM Workshop, NT-MDT) into recording CSVs.
     Import(import::ImportArgs),
+    /// Replay a recording's deflection through the firmware under QEMU, bit for bit against
+    /// the host build of the core.
+    Replay(replay::ReplayArgs),
 }
 
 /// Parses the command line, runs the subcommand, reports errors. Exit status: 0 success,
@@ -34,6 +38,7 @@ pub fn run() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Import(args) => import::run(args),
+        Command::Replay(args) => replay::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
