@@ -971,6 +971,7 @@ pub fn bench_window(
     let (mut link, defmt) = spawn_on(m, elf, Some(shift), &format!("bench-{}", w.name))?;
     s.fw.send(&mut link).map_err(boxed)?;
     // 1. Replay up to the window.
+    eprintln!("{}: replaying {start} samples up to the window", w.name);
     let prefix = link
         .replay(
             ReplayInput::Codes(&sim.codes[..start]),
@@ -986,19 +987,30 @@ pub fn bench_window(
         ));
     }
     // 2. The window's codes into the bench table.
+    eprintln!("{}: loading the table", w.name);
     link.command_ok(&Cmd::SetSource(Source::Table))
         .map_err(io)?;
     for (k, chunk) in sim.codes[start..start + n].chunks(MAX_FEED).enumerate() {
         let mut c = [0i16; MAX_FEED];
         c[..chunk.len()].copy_from_slice(chunk);
-        link.command_ok(&Cmd::Feed(FeedBlock {
-            first_index: (k * MAX_FEED) as u32,
-            len: chunk.len() as u8,
-            samples: FeedSamples::Codes(c),
-        }))
-        .map_err(io)?;
+        // Feed blocks are acknowledged only when refused.
+        link.writer
+            .send(&Cmd::Feed(FeedBlock {
+                first_index: (k * MAX_FEED) as u32,
+                len: chunk.len() as u8,
+                samples: FeedSamples::Codes(c),
+            }))
+            .map_err(io)?;
+    }
+    link.status().map_err(io)?;
+    if let Some(code) = link.backlog.iter().find_map(|m| match m {
+        Telemetry::Ack { code, .. } => Some(*code),
+        _ => None,
+    }) {
+        return Err(format!("{}: the firmware refused the table (ack code {code})", w.name));
     }
     // 3. The timer-driven interrupts over the table.
+    eprintln!("{}: bench", w.name);
     link.backlog.clear();
     let ipt = expected_insns_per_tick(shift);
     link.command_ok(&Cmd::Bench {
