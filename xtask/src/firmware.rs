@@ -1007,14 +1007,17 @@ pub fn bench_window(
         Telemetry::Ack { code, .. } => Some(*code),
         _ => None,
     }) {
-        return Err(format!("{}: the firmware refused the table (ack code {code})", w.name));
+        return Err(format!(
+            "{}: the firmware refused the table (ack code {code})",
+            w.name
+        ));
     }
     // 3. The timer-driven interrupts over the table.
     eprintln!("{}: bench", w.name);
     link.backlog.clear();
     let ipt = expected_insns_per_tick(shift);
     link.command_ok(&Cmd::Bench {
-        mode: BenchMode::Continue,
+        mode: BenchMode::Continue { time_step: true },
         steps,
         period_ticks: bench_period(ipt),
     })
@@ -1527,4 +1530,213 @@ pub fn flash_stm32h743(chip: &str) -> Result<()> {
     run(Command::new("probe-rs")
         .args(["run", "--chip", chip])
         .arg(&elf))
+}
+
+// ---------------------------------------------------------------- profile
+
+/// `cargo xtask profile [--window NAME] [--steps N]`: where the instructions of the loop
+/// interrupt go, instruction by instruction. The window's recording is replayed up to the
+/// window as for the bench; then QEMU (in single-step mode) logs every executed instruction
+/// (`-d exec,nochain`, switched on through its monitor) during `steps` loop interrupts of a
+/// `BenchMode::Continue` bench. Prints the executed instructions per interrupt by function
+/// and writes the disassembly annotated with executions per interrupt to `FILE.annotated`.
+pub fn profile(window: &str, steps: u32) -> Result<()> {
+    use std::io::{BufRead, Write as _};
+    ensure_tools()?;
+    let elf = build(Board::Qemu, &[])?;
+    let w = WINDOWS
+        .iter()
+        .find(|w| w.name == window)
+        .ok_or_else(|| format!("no window {window:?}"))?;
+    let s = if w.dive { dive_tap() } else { sve_line() };
+    let sim = simulate(&s)?;
+    let start = sim
+        .steps
+        .iter()
+        .position(|f| (w.start)(f.status))
+        .ok_or("the recording never enters the window")?;
+    let n = steps as usize;
+    let dir = std::env::temp_dir();
+    let mon = dir.join(format!("visco-mon-{}.sock", std::process::id()));
+    let log = dir.join(format!("visco-exec-{}.log", std::process::id()));
+    let _ = std::fs::remove_file(&mon);
+    let _ = std::fs::remove_file(&log);
+    // SAFETY-free in edition 2021: single-threaded at this point.
+    std::env::set_var(
+        "VISCO_QEMU_EXTRA",
+        format!(
+            "-singlestep -D {} -monitor unix:{},server=on,wait=off",
+            log.display(),
+            mon.display()
+        ),
+    );
+    let (mut link, defmt) = spawn(&elf, None, "profile")?;
+    std::env::remove_var("VISCO_QEMU_EXTRA");
+    s.fw.send(&mut link).map_err(boxed)?;
+    link.replay(
+        ReplayInput::Codes(&sim.codes[..start]),
+        Some(s.mode),
+        PerSample::Blocks,
+        true,
+    )
+    .map_err(io)?;
+    link.command_ok(&Cmd::SetSource(Source::Table))
+        .map_err(io)?;
+    for (k, chunk) in sim.codes[start..start + n].chunks(MAX_FEED).enumerate() {
+        let mut c = [0i16; MAX_FEED];
+        c[..chunk.len()].copy_from_slice(chunk);
+        link.writer
+            .send(&Cmd::Feed(FeedBlock {
+                first_index: (k * MAX_FEED) as u32,
+                len: chunk.len() as u8,
+                samples: FeedSamples::Codes(c),
+            }))
+            .map_err(io)?;
+    }
+    link.status().map_err(io)?;
+    let mut m = std::os::unix::net::UnixStream::connect(&mon).map_err(io)?;
+    let mut monitor = |cmd: &str| -> Result<()> {
+        m.write_all(format!("{cmd}\n").as_bytes()).map_err(io)?;
+        std::thread::sleep(Duration::from_millis(300));
+        Ok(())
+    };
+    monitor("log exec,nochain")?;
+    link.command_ok(&Cmd::Bench {
+        mode: BenchMode::Continue { time_step: false },
+        steps,
+        period_ticks: 20_000,
+    })
+    .map_err(io)?;
+    monitor("log none")?;
+    finish(link, &elf, &defmt)?;
+    // The loop interrupt and what it calls: everything from the handler's entry to its exit
+    // executed while the bench ran; the thread-mode `step` timing loop and the idle loop are
+    // excluded by address (the bench function and its inlined helpers).
+    let dis = disassemble(&elf)?;
+    let isr = interrupt_ranges(&dis);
+    let f = std::fs::File::open(&log).map_err(|e| e.to_string())?;
+    let mut count: std::collections::HashMap<u32, u64> = Default::default();
+    for line in std::io::BufReader::new(f).lines() {
+        let line = line.map_err(io)?;
+        // "Trace 0: 0x7f.. [00000000/00000788/..." : the guest pc is the second field.
+        let Some(b) = line.find('[') else { continue };
+        let fields: Vec<&str> = line[b + 1..].split('/').collect();
+        if let Some(pc) = fields.get(1).and_then(|p| u32::from_str_radix(p, 16).ok()) {
+            *count.entry(pc).or_default() += 1;
+        }
+    }
+    let mut per_fn: Vec<(String, f64)> = Vec::new();
+    let mut out = String::new();
+    let mut total = 0.0;
+    let mut current: Option<String> = None;
+    for l in dis.lines() {
+        if let Some(name) = l
+            .strip_suffix(">:")
+            .and_then(|x| x.split_once(" <"))
+            .map(|x| x.1)
+        {
+            current = Some(name.to_string());
+            let _ = writeln!(out, "{l}");
+            continue;
+        }
+        let pc = l
+            .trim_start()
+            .split(':')
+            .next()
+            .and_then(|a| u32::from_str_radix(a, 16).ok());
+        let c = pc.and_then(|pc| {
+            isr.iter()
+                .any(|r| r.contains(&pc))
+                .then(|| count.get(&(pc & !1)).copied())
+                .flatten()
+        });
+        match c {
+            Some(c) => {
+                let per = c as f64 / f64::from(steps);
+                total += per;
+                if let Some(name) = &current {
+                    match per_fn.iter_mut().find(|(n, _)| n == name) {
+                        Some(e) => e.1 += per,
+                        None => per_fn.push((name.clone(), per)),
+                    }
+                }
+                let _ = writeln!(out, "{per:8.3} {l}");
+            }
+            None => {
+                let _ = writeln!(out, "         {l}");
+            }
+        }
+    }
+    let path = PathBuf::from(format!("target/profile-{window}.annotated"));
+    std::fs::write(&path, out).map_err(|e| e.to_string())?;
+    per_fn.sort_by(|a, b| b.1.total_cmp(&a.1));
+    println!("{window}: {total:.1} instructions per loop interrupt (logged, {steps} interrupts from sample {start})");
+    for (name, per) in per_fn {
+        println!("{per:8.1}  {name}");
+    }
+    println!("annotated disassembly: {}", path.display());
+    let _ = std::fs::remove_file(&log);
+    Ok(())
+}
+
+fn llvm_objdump() -> Result<PathBuf> {
+    let sysroot = output(Command::new("rustc").args(["--print", "sysroot"]))?;
+    let host = output(Command::new("rustc").arg("-vV"))?
+        .lines()
+        .find_map(|l| l.strip_prefix("host: ").map(str::to_string))
+        .ok_or("rustc -vV has no host line")?;
+    let p = PathBuf::from(sysroot.trim())
+        .join("lib/rustlib")
+        .join(host)
+        .join("bin/llvm-objdump");
+    if p.is_file() {
+        return Ok(p);
+    }
+    run(Command::new("rustup").args(["component", "add", "llvm-tools"]))?;
+    if p.is_file() {
+        Ok(p)
+    } else {
+        Err(format!(
+            "{} missing after `rustup component add llvm-tools`",
+            p.display()
+        ))
+    }
+}
+
+/// The image's disassembly (Cortex-M7, demangled).
+pub fn disassemble(elf: &Path) -> Result<String> {
+    output(
+        Command::new(llvm_objdump()?)
+            .args(["-d", "--no-show-raw-insn", "--demangle", "--mcpu=cortex-m7"])
+            .arg(elf),
+    )
+}
+
+/// Address ranges of the functions that the loop interrupt runs: the handler and every
+/// function of the core and the firmware library it may call (not the bench itself).
+fn interrupt_ranges(dis: &str) -> Vec<std::ops::Range<u32>> {
+    let mut starts: Vec<(u32, String)> = Vec::new();
+    for l in dis.lines() {
+        if let Some((addr, rest)) = l.split_once(" <") {
+            if let (Ok(a), Some(name)) = (
+                u32::from_str_radix(addr.trim(), 16),
+                rest.strip_suffix(">:"),
+            ) {
+                starts.push((a, name.to_string()));
+            }
+        }
+    }
+    let mut v = Vec::new();
+    for (i, (a, name)) in starts.iter().enumerate() {
+        let end = starts.get(i + 1).map_or(u32::MAX, |s| s.0);
+        let wanted = name == "TIMER0"
+            || (name.starts_with("visco_core::") && !name.contains("config"))
+            || name.starts_with("visco_firmware::core_config::")
+            || name.contains("memcpy")
+            || name.contains("memclr");
+        if wanted {
+            v.push(*a..end);
+        }
+    }
+    v
 }

@@ -26,6 +26,10 @@ fn usage() -> &'static str {
   link-throughput               diagnostic: each direction of the QEMU UART link alone
   lockstep                      closed loop: host plant ↔ firmware under QEMU, one round trip
                                 per sample, an SVE line segment, compared with the host-only run
+  profile [--window W] [--steps N]
+                                executed instructions of the loop interrupt per function and
+                                per instruction (QEMU exec log) in a bench window: dive-dwell,
+                                dive-readout, sve-scan
   defmt ELF STREAM              decode a defmt stream (e.g. QEMU semihosting output)"
 }
 
@@ -148,6 +152,10 @@ fn main() -> ExitCode {
             }
             "link-throughput" => firmware::link_throughput(),
             "lockstep" => firmware::lockstep().map(|_| ()),
+            "profile" => firmware::profile(
+                &arg_value(rest, "--window").unwrap_or_else(|| "sve-scan".into()),
+                num(rest, "--steps", 200u32)?,
+            ),
             "flash-stm32h743" => firmware::flash_stm32h743(
                 &arg_value(rest, "--chip").unwrap_or_else(|| "STM32H743ZITx".into()),
             ),

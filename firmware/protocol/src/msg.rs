@@ -189,9 +189,13 @@ pub enum BenchMode {
     /// Started in a mode at the beginning of the window, synthetic ADC input.
     Start(Mode),
     /// Carries on from where a replay left it, reading the bench table ([`Source::Table`])
-    /// as the ADC input: the estimating phases of a real recording. Also measures `step`
-    /// alone on a copy of the core over the same input (thread mode, interrupts masked).
-    Continue,
+    /// as the ADC input: the estimating phases of a real recording. With `time_step`, first
+    /// measures `step` alone on a copy of the core over the same input (thread mode,
+    /// interrupts masked).
+    Continue {
+        /// Also time `step` alone.
+        time_step: bool,
+    },
 }
 
 impl BenchMode {
@@ -199,13 +203,15 @@ impl BenchMode {
         match self {
             BenchMode::Stopped => 0,
             BenchMode::Start(m) => m.to_u8(),
-            BenchMode::Continue => 3,
+            BenchMode::Continue { time_step: true } => 3,
+            BenchMode::Continue { time_step: false } => 4,
         }
     }
     fn from_u8(v: u8) -> Result<Self, DecodeError> {
         match v {
             0 => Ok(BenchMode::Stopped),
-            3 => Ok(BenchMode::Continue),
+            3 => Ok(BenchMode::Continue { time_step: true }),
+            4 => Ok(BenchMode::Continue { time_step: false }),
             m => Ok(BenchMode::Start(Mode::from_u8(m)?)),
         }
     }
@@ -450,7 +456,7 @@ pub struct BenchFrame {
     pub idle_insns_per_iteration: u8,
     /// Instructions in the window outside the interrupts and the idle loop (fixed).
     pub fixed_insns: u8,
-    /// [`BenchMode::Continue`]: SysTick ticks of `steps` calls of `step` alone, on a copy of
+    /// [`BenchMode::Continue`] with `time_step`: SysTick ticks of `steps` calls of `step` alone, on a copy of
     /// the core over the same input, in thread mode with interrupts masked (0 otherwise).
     pub step_ticks: u32,
     /// The same loop without the `step` call (its own cost, to subtract).

@@ -65,7 +65,12 @@ fn all_commands() -> Vec<Command> {
             period_ticks: 50,
         },
         Command::Bench {
-            mode: BenchMode::Continue,
+            mode: BenchMode::Continue { time_step: true },
+            steps: 12_000,
+            period_ticks: 100,
+        },
+        Command::Bench {
+            mode: BenchMode::Continue { time_step: false },
             steps: 12_000,
             period_ticks: 100,
         },

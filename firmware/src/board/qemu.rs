@@ -679,14 +679,16 @@ pub fn bench(b: &mut Board, mode: BenchMode, steps: u32, period_ticks: u32) -> O
                 l.adc.source = AdcSource::Synthetic;
                 LoopCore::apply_command(c, CoreCommand::Start(m));
             }
-            BenchMode::Continue => {
+            BenchMode::Continue { time_step } => {
                 if steps as usize > l.adc.table_len {
                     return false;
                 }
                 l.adc.source = AdcSource::Table;
                 l.adc.table_pos = 0;
-                let table = l.adc.table.get(..steps as usize).unwrap_or(&[]);
-                (step_ticks, loop_ticks) = time_step_alone(c, table, l.adc.scale);
+                if time_step {
+                    let table = l.adc.table.get(..steps as usize).unwrap_or(&[]);
+                    (step_ticks, loop_ticks) = time_step_alone(c, table, l.adc.scale);
+                }
             }
         }
         true
@@ -727,7 +729,7 @@ pub fn bench(b: &mut Board, mode: BenchMode, steps: u32, period_ticks: u32) -> O
     timer_stop();
     let w1 = timer1_now();
     app::with_loop(|l| {
-        if mode == BenchMode::Continue {
+        if matches!(mode, BenchMode::Continue { .. }) {
             // The core stays where the recording took it; the host may continue the replay.
             l.adc.source = AdcSource::Synthetic;
         } else if let Some(c) = l.core.as_mut() {
@@ -742,7 +744,7 @@ pub fn bench(b: &mut Board, mode: BenchMode, steps: u32, period_ticks: u32) -> O
             BenchMode::Stopped => 0,
             BenchMode::Start(Mode::Dive) => 1,
             BenchMode::Start(Mode::Sve) => 2,
-            BenchMode::Continue => 3,
+            BenchMode::Continue { .. } => 3,
         },
         steps,
         ticks: if wrapped { 0 } else { ticks },
