@@ -1085,17 +1085,26 @@ pub fn bench_window(
     })
 }
 
-/// Idle, then every window of [`WINDOWS`], on machine `m`.
-pub fn bench_all(m: Machine, elf: &Path, steps: u32, shift: u32) -> Result<Vec<BenchResult>> {
-    let mut v = vec![bench_idle(m, elf, steps, shift)?];
+/// Idle, then every window of [`WINDOWS`] (or only the one named `only`), on machine `m`.
+pub fn bench_all(
+    m: Machine,
+    elf: &Path,
+    steps: u32,
+    shift: u32,
+    only: Option<&str>,
+) -> Result<Vec<BenchResult>> {
+    let mut v = Vec::new();
+    if only.is_none_or(|o| o == "idle") {
+        v.push(bench_idle(m, elf, steps, shift)?);
+    }
     let (dive, sve) = (dive_tap(), sve_line());
-    let sims = [simulate(&dive)?, simulate(&sve)?];
-    for w in &WINDOWS {
-        let (s, sim) = if w.dive {
-            (&dive, &sims[0])
-        } else {
-            (&sve, &sims[1])
-        };
+    let mut sims: [Option<Simulation>; 2] = [None, None];
+    for w in WINDOWS.iter().filter(|w| only.is_none_or(|o| o == w.name)) {
+        let (s, k) = if w.dive { (&dive, 0) } else { (&sve, 1) };
+        if sims[k].is_none() {
+            sims[k] = Some(simulate(s)?);
+        }
+        let sim = sims[k].as_ref().ok_or("no simulation")?;
         v.push(bench_window(m, elf, s, sim, w, steps, shift)?);
     }
     Ok(v)
@@ -1184,7 +1193,7 @@ pub fn measure(with_replay: bool, with_lockstep: bool) -> Result<Report> {
     let elf = qemu_elf.ok_or("no QEMU image")?;
     let calibration = calibrate(&elf, &[0, 3])?;
     check_calibration(&calibration, "mps2-an500")?;
-    let bench_v = bench_all(M7, &elf, BENCH_STEPS, 0)?;
+    let bench_v = bench_all(M7, &elf, BENCH_STEPS, 0, None)?;
     let mut replay_v = Vec::new();
     if with_replay {
         for s in [dive_tap(), sve_line()] {
@@ -1420,7 +1429,7 @@ pub fn firmware_tests() -> Result<()> {
         }
     }
     lockstep_on(&elf, &sve_lockstep())?;
-    let b = bench_all(M7, &elf, BENCH_STEPS, 0)?;
+    let b = bench_all(M7, &elf, BENCH_STEPS, 0, None)?;
     print_bench(&b);
     for (mode, goal) in [(Mode::Dive, GOAL_DIVE), (Mode::Sve, GOAL_SVE)] {
         let w = per_mode(&b, mode).ok_or("no bench result")?;
@@ -1739,4 +1748,68 @@ fn interrupt_ranges(dis: &str) -> Vec<std::ops::Range<u32>> {
         }
     }
     v
+}
+
+// ---------------------------------------------------------------- core digest
+
+/// `cargo xtask core-digest`: CRC-32 digests of every per-sample output (U code, U, X, Y,
+/// status, estimates) and every record of closed-loop runs of the host build of the core:
+/// the scenarios above and the paper's DIVE (5 × 5 taps) and SVE (two lines) at 500 kHz as
+/// in `cargo run --release -p visco --example explore -- 500e3 both 5`. Equal digests before
+/// and after a change of the core mean bit-identical results.
+pub fn core_digest() -> Result<()> {
+    let explore = |mode: Mode| {
+        let n = 5.0;
+        let mut fields = vec![("sample_rate_hz", 500e3)];
+        match mode {
+            Mode::Dive => fields.extend([
+                ("dive.nx", n),
+                ("dive.ny", n),
+                ("dive.dx_m", 5e-6 / n),
+                ("dive.dy_m", 5e-6 / n),
+                ("dive.x0_m", 2.5e-6 / n),
+                ("dive.y0_m", 2.5e-6 / n),
+            ]),
+            Mode::Sve => fields.extend([
+                ("sve.lines", 2.0),
+                ("sve.dy_m", 5e-6 / n),
+                ("sve.y0_m", 2.5e-6 / n),
+            ]),
+        }
+        Scenario {
+            name: match mode {
+                Mode::Dive => "explore-dive",
+                Mode::Sve => "explore-sve-2-lines",
+            },
+            mode,
+            fw: config(&fields),
+            max_samples: 20_000_000,
+        }
+    };
+    for s in [
+        dive_tap(),
+        sve_line(),
+        sve_lockstep(),
+        explore(Mode::Dive),
+        explore(Mode::Sve),
+    ] {
+        let sim = simulate(&s)?;
+        let mut rd = visco_protocol::crc::Crc32::new();
+        for r in &sim.records {
+            rd.update(format!("{r:?}").as_bytes());
+        }
+        let last = sim.records.last();
+        println!(
+            "{:<20} {:>9} samples  steps {:08x}  {:>4} records {:08x}  last record c {:e} k {:e} h {:e}",
+            s.name,
+            sim.steps.len(),
+            visco_protocol::step_digest(&sim.steps),
+            sim.records.len(),
+            rd.finish(),
+            last.map_or(0.0, |r| r.c_ns_per_m),
+            last.map_or(0.0, |r| r.k_n_per_m),
+            last.map_or(0.0, |r| r.height_m),
+        );
+    }
+    Ok(())
 }

@@ -11,7 +11,7 @@ fn usage() -> &'static str {
   panic-check                   prove no panic path is linked (panic-never handler + canary)
   calibrate [--shifts 0,3,6] [--m3]
                                 SysTick ticks vs counted instructions under -icount
-  bench [--steps N] [--shift S] [--m3]
+  bench [--steps N] [--shift S] [--m3] [--window idle|dive-dwell|dive-readout|sve-scan]
                                 instructions per loop interrupt: core stopped, DIVE dwell, DIVE
                                 read-out, SVE scan, over closed-loop recordings (--m3: the
                                 thumbv7m-none-eabi build on mps2-an385, Cortex-M3, soft float)
@@ -30,6 +30,8 @@ fn usage() -> &'static str {
                                 executed instructions of the loop interrupt per function and
                                 per instruction (QEMU exec log) in a bench window: dive-dwell,
                                 dive-readout, sve-scan
+  core-digest                   CRC-32 of every output of closed-loop runs of the host core
+                                (equal before and after a core change: bit-identical results)
   defmt ELF STREAM              decode a defmt stream (e.g. QEMU semihosting output)"
 }
 
@@ -101,7 +103,13 @@ fn main() -> ExitCode {
                 };
                 let elf = firmware::build_for(m.target, firmware::Board::Qemu, &[])?;
                 println!("{} ({}), {}", m.machine, m.cpu, m.target);
-                let b = firmware::bench_all(m, &elf, steps, shift)?;
+                let b = firmware::bench_all(
+                    m,
+                    &elf,
+                    steps,
+                    shift,
+                    arg_value(rest, "--window").as_deref(),
+                )?;
                 firmware::print_bench(&b);
                 Ok(())
             }
@@ -152,6 +160,7 @@ fn main() -> ExitCode {
             }
             "link-throughput" => firmware::link_throughput(),
             "lockstep" => firmware::lockstep().map(|_| ()),
+            "core-digest" => firmware::core_digest(),
             "profile" => firmware::profile(
                 &arg_value(rest, "--window").unwrap_or_else(|| "sve-scan".into()),
                 num(rest, "--steps", 200u32)?,
