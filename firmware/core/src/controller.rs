@@ -753,11 +753,13 @@ impl<T: SineTable> Controller<T> {
         // Input conditioning: the ADC cannot exceed its full scale; a non-finite value (a bus
         // glitch) is replaced by the last valid one. The estimator skips either.
         let d_in = d_m * self.p.to_internal;
-        let d = if d_in.is_finite() {
-            if d_in > self.p.d_max || d_in < -self.p.d_max {
-                st |= status::INPUT_SATURATED;
-            }
-            d_in.clamp_to(-self.p.d_max, self.p.d_max)
+        let d_max = self.p.d_max;
+        // The usual case first: inside the full scale (false for NaN).
+        let d = if d_in >= -d_max && d_in <= d_max {
+            d_in
+        } else if d_in.is_finite() {
+            st |= status::INPUT_SATURATED;
+            d_in.clamp_to(-d_max, d_max)
         } else {
             st |= status::INPUT_INVALID;
             self.d_last
