@@ -36,6 +36,7 @@ use crate::geometry::mean_sag;
 use crate::prefilter::HighPass;
 use crate::regressor::{Regressor, RegressorParams};
 use crate::units;
+use core::num::{NonZeroU32, NonZeroU64};
 
 /// Bits of the status word returned with every step.
 pub mod status {
@@ -263,7 +264,8 @@ impl<T: crate::Real> Dac<T> {
 
 #[derive(Clone, Copy, Debug)]
 struct DiveParams<T> {
-    nx: u32,
+    /// Validated ≥ 1: the divisions by it need no zero test (and have no panic path).
+    nx: NonZeroU32,
     taps: u32,
     x0: T,
     y0: T,
@@ -288,7 +290,8 @@ struct DiveParams<T> {
 struct SveParams<T> {
     regressor: SveRegressor,
     lines: u32,
-    pixels: u32,
+    /// Validated ≥ 1 (see `DiveParams::nx`).
+    pixels: NonZeroU32,
     x0: T,
     x1: T,
     y0: T,
@@ -521,7 +524,7 @@ impl<T: SineTable> Controller<T> {
             max_travel: t(cfg.approach.max_travel_m * nm),
             u_start: t(cfg.approach.u_start_m * nm),
             dive: DiveParams {
-                nx: d.nx,
+                nx: NonZeroU32::new(d.nx).unwrap_or(NonZeroU32::MIN),
                 taps: d.nx * d.ny,
                 x0: t(d.x0_m * nm),
                 y0: t(d.y0_m * nm),
@@ -544,7 +547,7 @@ impl<T: SineTable> Controller<T> {
             sve: SveParams {
                 regressor: s.regressor,
                 lines: s.lines,
-                pixels: s.pixels,
+                pixels: NonZeroU32::new(s.pixels).unwrap_or(NonZeroU32::MIN),
                 x0: t(s.x0_m * nm),
                 x1: t(s.x1_m * nm),
                 y0: t(s.y0_m * nm),
@@ -1176,7 +1179,7 @@ impl<T: SineTable> Controller<T> {
                 if t >= self.sve.next_boundary {
                     self.finish_pixel(forward);
                     self.sve.pixel += 1;
-                    if self.sve.pixel >= self.p.sve.pixels {
+                    if self.sve.pixel >= self.p.sve.pixels.get() {
                         if forward {
                             self.begin_line(false);
                         } else {
@@ -1190,9 +1193,10 @@ impl<T: SineTable> Controller<T> {
                             }
                         }
                     } else {
-                        self.sve.next_boundary =
-                            ((self.sve.pixel as u64 + 1) * self.p.sve.half_samples as u64
-                                / self.p.sve.pixels as u64) as u32;
+                        self.sve.next_boundary = ((self.sve.pixel as u64 + 1)
+                            * self.p.sve.half_samples as u64
+                            / NonZeroU64::from(self.p.sve.pixels))
+                            as u32;
                     }
                 }
             }
@@ -1215,7 +1219,7 @@ impl<T: SineTable> Controller<T> {
         let p = self.p.sve;
         self.sve.t = 0;
         self.sve.pixel = 0;
-        self.sve.next_boundary = (p.half_samples as u64 / p.pixels as u64) as u32;
+        self.sve.next_boundary = (p.half_samples as u64 / NonZeroU64::from(p.pixels)) as u32;
         self.sve.acc.clear();
         self.sve.x_acc = T::ZERO;
         self.phase = if forward {
@@ -1234,7 +1238,7 @@ impl<T: SineTable> Controller<T> {
         let pixel = if forward {
             s.pixel
         } else {
-            p.pixels - 1 - s.pixel
+            p.pixels.get() - 1 - s.pixel
         };
         let rec = PixelRecord {
             line: s.line as u16,
