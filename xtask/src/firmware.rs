@@ -226,6 +226,13 @@ pub fn build_all() -> Result<Vec<(Board, PathBuf)>> {
             s.flash,
             s.ram
         );
+        if b == Board::Stm32h743 {
+            let reached = itcm_check(&elf)?;
+            println!(
+                "stm32h743: the loop interrupt and the {} functions it can reach are all in ITCM",
+                reached.len() - 1
+            );
+        }
         out.push((b, elf));
     }
     Ok(out)
@@ -1812,4 +1819,85 @@ pub fn core_digest() -> Result<()> {
         );
     }
     Ok(())
+}
+
+// ---------------------------------------------------------------- ITCM check
+
+/// STM32H743: everything the loop interrupt (`TIM2`) can reach must be in ITCM (zero wait
+/// states), which the linker script arranges (`firmware/boards/stm32h743/memory.x`). This
+/// follows every branch and call from `TIM2` through the disassembly and lists the functions
+/// reached, with those outside ITCM as the error.
+pub fn itcm_check(elf: &Path) -> Result<Vec<String>> {
+    use object::{Object, ObjectSymbol, SymbolKind};
+    const ITCM: std::ops::Range<u64> = 0..0x1_0000;
+    let data = std::fs::read(elf).map_err(|e| format!("{}: {e}", elf.display()))?;
+    let file = object::File::parse(&*data).map_err(|e| e.to_string())?;
+    let mut funcs: Vec<(u64, u64, String)> = file
+        .symbols()
+        .filter(|s| s.kind() == SymbolKind::Text && s.size() > 0)
+        .map(|s| {
+            (
+                s.address() & !1,
+                (s.address() & !1) + s.size(),
+                s.name().unwrap_or("?").to_string(),
+            )
+        })
+        .collect();
+    funcs.sort();
+    let find = |a: u64| funcs.iter().position(|(s, e, _)| (*s..*e).contains(&a));
+    let root = funcs
+        .iter()
+        .position(|f| f.2 == "TIM2")
+        .ok_or("no TIM2 symbol in the STM32H743 image")?;
+    let mut edges: Vec<Vec<usize>> = vec![Vec::new(); funcs.len()];
+    for line in disassemble(elf)?.lines() {
+        let mut parts = line.trim_start().splitn(2, ':');
+        let (Some(addr), Some(rest)) = (parts.next(), parts.next()) else {
+            continue;
+        };
+        let Ok(at) = u64::from_str_radix(addr.trim(), 16) else {
+            continue;
+        };
+        let mut words = rest.split_whitespace();
+        let Some(mnemonic) = words.next() else {
+            continue;
+        };
+        if !mnemonic.starts_with('b') && !mnemonic.starts_with("cb") {
+            continue;
+        }
+        let Some(target) = words
+            .next()
+            .and_then(|t| t.strip_prefix("0x"))
+            .and_then(|t| u64::from_str_radix(t.trim_end_matches(','), 16).ok())
+        else {
+            continue;
+        };
+        if let (Some(from), Some(to)) = (find(at), find(target)) {
+            if from != to {
+                edges[from].push(to);
+            }
+        }
+    }
+    let mut seen = vec![false; funcs.len()];
+    let mut stack = vec![root];
+    let mut reached = Vec::new();
+    while let Some(f) = stack.pop() {
+        if std::mem::replace(&mut seen[f], true) {
+            continue;
+        }
+        reached.push(f);
+        stack.extend(edges[f].iter().copied());
+    }
+    let outside: Vec<String> = reached
+        .iter()
+        .filter(|&&f| !ITCM.contains(&funcs[f].0))
+        .map(|&f| format!("{} at {:#x}", funcs[f].2, funcs[f].0))
+        .collect();
+    if !outside.is_empty() {
+        return Err(format!(
+            "the loop interrupt reaches code outside ITCM: {}",
+            outside.join(", ")
+        ));
+    }
+    Ok(reached.iter().map(|&f| funcs[f].2.clone()).collect())
 }
