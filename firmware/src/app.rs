@@ -190,7 +190,7 @@ pub fn run() -> ! {
     let mut staged = StagedConfig::new();
     // The default configuration (`Config::paper` at 1 MHz), so that the loop can run at once.
     let (core, adc) = match core_glue::build_core(&staged, scales.adc) {
-        Ok(b) => (Some(b.core), b.adc),
+        Ok(b) => (b.core, b.adc),
         Err(_) => board::fatal(5),
     };
     let state = board::make_loop(&mut b, adc, core, tel_tx, &COMMANDS, &COUNTERS);
@@ -263,13 +263,7 @@ pub fn run() -> ! {
                     }
                     Err(None) => ack::BUSY,
                 },
-                Command::Start(mode) => {
-                    if with_loop(|l| l.core.is_some()) == Some(true) {
-                        push_cmd(CoreCommand::Start(mode))
-                    } else {
-                        ack::INVALID // no configuration applied yet
-                    }
-                }
+                Command::Start(mode) => push_cmd(CoreCommand::Start(mode)),
                 Command::Stop => push_cmd(CoreCommand::Stop),
                 Command::SetSource(src) => board::set_source(&mut b, src),
                 Command::Feed(block) => {
@@ -367,10 +361,10 @@ fn apply_config(
 ) -> Result<(), Option<ConfigRejectedFrame>> {
     // A Start/Stop the loop has not taken yet (no samples are coming) takes effect now.
     let running = with_loop(|l| {
-        if let (Some(c), Some(cmd)) = (l.core.as_mut(), COMMANDS.take()) {
-            c.apply_command(cmd);
+        if let Some(cmd) = COMMANDS.take() {
+            l.core.apply_command(cmd);
         }
-        l.core.as_ref().and_then(LoopCore::running_mode).is_some()
+        l.core.running_mode().is_some()
     });
     if running != Some(false) {
         return Err(None);
@@ -380,7 +374,7 @@ fn apply_config(
         Ok(b) => {
             let (core, adc) = (b.core, b.adc);
             with_loop(move |l| {
-                l.core = Some(core);
+                l.core = core;
                 board::set_scales(l, adc);
             });
             Ok(())
@@ -393,16 +387,15 @@ fn apply_config(
 }
 
 fn status(rx_bad: u32, rx_seq: &SeqTracker) -> StatusFrame {
-    let (state, estimates) = with_loop(|l| match l.core.as_ref() {
-        Some(c) => (
-            match c.running_mode() {
+    let (state, estimates) = with_loop(|l| {
+        (
+            match l.core.running_mode() {
                 None => 0,
                 Some(core_glue::Mode::Dive) => 1,
                 Some(core_glue::Mode::Sve) => 2,
             },
-            c.estimate_array(),
-        ),
-        None => (0, [0.0; 3]),
+            l.core.estimate_array(),
+        )
     })
     .unwrap_or((0, [0.0; 3]));
     StatusFrame {

@@ -115,8 +115,8 @@ pub struct LoopState<A, U, X, C> {
     pub u_out: U,
     /// Lateral outputs.
     pub xy_out: X,
-    /// The identification core (`None` until a configuration was applied: no steps).
-    pub core: Option<C>,
+    /// The identification core.
+    pub core: C,
     /// Loop → main telemetry.
     pub telemetry: Producer<'static, Item, TELEMETRY_DEPTH>,
     /// Main → loop commands.
@@ -125,8 +125,9 @@ pub struct LoopState<A, U, X, C> {
     pub counters: &'static Counters,
     /// Emit a Step item per sample.
     pub per_sample: bool,
-    /// Sample index (since the source was last set).
-    pub index: u32,
+    /// The sample counter's value when the source was last set: the index of a sample in
+    /// the telemetry is `counters.samples − index_base` (one counter per sample, not two).
+    pub index_base: u32,
     last_xy: (i32, i32),
 }
 
@@ -137,7 +138,7 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
         adc: A,
         u_out: U,
         xy_out: X,
-        core: Option<C>,
+        core: C,
         telemetry: Producer<'static, Item, TELEMETRY_DEPTH>,
         commands: &'static CommandSlot,
         counters: &'static Counters,
@@ -151,7 +152,7 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
             commands,
             counters,
             per_sample: false,
-            index: 0,
+            index_base: 0,
             // Out of any DAC's range: the first step always writes the lateral outputs.
             last_xy: (i32::MIN, i32::MIN),
         }
@@ -160,10 +161,7 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
     /// One loop sample. Called from the loop interrupt only.
     #[inline(always)]
     pub fn on_sample(&mut self) {
-        let Some(core) = self.core.as_mut() else {
-            bump(&self.counters.starved);
-            return;
-        };
+        let core = &mut self.core;
         if let Some(cmd) = self.commands.take() {
             core.apply_command(cmd);
         }
@@ -181,12 +179,13 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
             self.xy_out.write(out.x_code, out.y_code);
         }
         if self.per_sample {
-            let estimates = core.estimate_array();
+            let estimates = self.core.estimate_array();
+            let index = self.index();
             emit(
                 &mut self.telemetry,
                 self.counters,
                 Item::Step(StepFrame {
-                    index: self.index,
+                    index,
                     d_m: d,
                     u_code: out.u_code,
                     dac_word,
@@ -199,12 +198,26 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
             );
         }
         if out.status & RECORD_READY != 0 {
-            if let Some(r) = core.take_record(self.index) {
+            let index = self.index();
+            if let Some(r) = self.core.take_record(index) {
                 emit(&mut self.telemetry, self.counters, Item::Record(r));
             }
         }
-        self.index = self.index.wrapping_add(1);
         bump(&self.counters.samples);
+    }
+
+    /// The index of the sample being stepped (since the source was last set).
+    #[inline(always)]
+    pub fn index(&self) -> u32 {
+        self.counters
+            .samples
+            .load(Ordering::Relaxed)
+            .wrapping_sub(self.index_base)
+    }
+
+    /// Restarts the sample index at 0 (a new source).
+    pub fn reset_index(&mut self) {
+        self.index_base = self.counters.samples.load(Ordering::Relaxed);
     }
 }
 
@@ -263,7 +276,7 @@ mod tests {
             Fed(std::vec![0.0; n]),
             Words::default(),
             Xy::default(),
-            Some(built.core),
+            built.core,
             tp,
             &CMD,
             &COUNTERS,
@@ -275,6 +288,9 @@ mod tests {
             st.on_sample();
         }
         assert_eq!(COUNTERS.samples.load(Ordering::Relaxed), n as u32);
+        assert_eq!(st.index(), n as u32);
+        st.reset_index();
+        assert_eq!(st.index(), 0);
         assert_eq!(COUNTERS.starved.load(Ordering::Relaxed), 1);
         // One Step item per sample, 64 fit: the rest is dropped and counted.
         assert_eq!(
@@ -293,6 +309,6 @@ mod tests {
         assert_eq!(st.u_out.0.len(), n);
         // The core starts above the first tap: the lateral DACs are written once, then hold.
         assert_eq!(st.xy_out.0.len(), 1);
-        assert_eq!(st.core.as_ref().unwrap().running_mode(), Some(Mode::Dive));
+        assert_eq!(st.core.running_mode(), Some(Mode::Dive));
     }
 }

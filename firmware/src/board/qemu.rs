@@ -273,12 +273,13 @@ impl loop_body::Adc for QemuAdc {
                 FeedSample::Metres(m) => return Some(m),
             },
             AdcSource::Table => {
-                if self.table_pos >= self.table_len {
+                let i = self.table_pos;
+                if i >= self.table_len {
                     return None;
                 }
-                let c = *self.table.get(self.table_pos)?;
-                self.table_pos += 1;
-                c as i32
+                self.table_pos = i + 1;
+                // table_len ≤ TABLE_LEN: the mask changes nothing and needs no bounds test.
+                self.table[i & (TABLE_LEN - 1)] as i32
             }
         };
         // The "conversion" lands in the ADC's output register, then the driver reads it over
@@ -416,7 +417,7 @@ fn device<B: SpiBus<u8>>(bus: B) -> CsDevice<B, VirtualPin, NoWait> {
 pub fn make_loop(
     b: &mut Board,
     adc_scale: Scale,
-    core: Option<ActiveCore>,
+    core: ActiveCore,
     tel: Producer<'static, Item, TELEMETRY_DEPTH>,
     cmds: &'static CommandSlot,
     counters: &'static Counters,
@@ -552,7 +553,7 @@ pub fn set_source(b: &mut Board, src: Source) -> u8 {
             b.loading_table = false;
             app::with_loop(|l| {
                 l.adc.source = AdcSource::Synthetic;
-                l.index = 0;
+                l.reset_index();
             });
             if period_ticks != 0 {
                 timer_start(period_ticks);
@@ -566,7 +567,7 @@ pub fn set_source(b: &mut Board, src: Source) -> u8 {
                 // Samples of an earlier replay still queued are discarded.
                 while l.adc.feed.pop().is_some() {}
                 l.adc.source = AdcSource::Feed;
-                l.index = 0;
+                l.reset_index();
             });
         }
     }
@@ -667,9 +668,7 @@ pub fn bench(b: &mut Board, mode: BenchMode, steps: u32, period_ticks: u32) -> O
     let (mut step_ticks, mut loop_ticks) = (0, 0);
     let configured = app::with_loop(|l| {
         l.per_sample = false;
-        let Some(c) = l.core.as_mut() else {
-            return false;
-        };
+        let c = &mut l.core;
         match mode {
             BenchMode::Stopped => {
                 l.adc.source = AdcSource::Synthetic;
@@ -732,8 +731,8 @@ pub fn bench(b: &mut Board, mode: BenchMode, steps: u32, period_ticks: u32) -> O
         if matches!(mode, BenchMode::Continue { .. }) {
             // The core stays where the recording took it; the host may continue the replay.
             l.adc.source = AdcSource::Synthetic;
-        } else if let Some(c) = l.core.as_mut() {
-            LoopCore::apply_command(c, CoreCommand::Stop);
+        } else {
+            l.core.apply_command(CoreCommand::Stop);
         }
     });
     let ticks = t0.wrapping_sub(t1) & 0x00FF_FFFF;

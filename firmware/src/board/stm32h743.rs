@@ -481,7 +481,7 @@ pub fn init() -> Board {
 pub fn make_loop(
     _b: &mut Board,
     adc_scale: Scale,
-    core: Option<ActiveCore>,
+    core: ActiveCore,
     tel: Producer<'static, Item, TELEMETRY_DEPTH>,
     cmds: &'static CommandSlot,
     counters: &'static Counters,
@@ -547,7 +547,7 @@ pub fn set_source(_b: &mut Board, src: Source) -> u8 {
     timer_stop();
     match src {
         Source::Timer { period_ticks } => {
-            app::with_loop(|l| l.index = 0);
+            app::with_loop(|l| l.reset_index());
             if period_ticks != 0 {
                 timer_start(period_ticks);
             }
