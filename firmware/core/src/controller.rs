@@ -331,34 +331,34 @@ struct Params<T> {
     sve: SveParams<T>,
 }
 
-/// Sums for a read-out average. Values are accumulated as deviations from the first sample so
-/// that f32 keeps its precision over tens of thousands of samples.
+/// Sums for a read-out average of [c, k, h, depth]. Values are accumulated as deviations from
+/// the first sample so that f32 keeps its precision over tens of thousands of samples.
 #[derive(Clone, Copy, Debug, Default)]
 struct Accumulator<T> {
-    base: [T; 5],
-    sum: [T; 5],
+    base: [T; 4],
+    sum: [T; 4],
     n: u32,
     flags: u32,
 }
 
 impl<T: crate::Real> Accumulator<T> {
     #[inline(always)]
-    fn add(&mut self, v: [T; 5], flags: u32) {
+    fn add(&mut self, v: [T; 4], flags: u32) {
         if self.n == 0 {
             self.base = v;
         }
-        for i in 0..5 {
+        for i in 0..4 {
             self.sum[i] += v[i] - self.base[i];
         }
         self.n += 1;
         self.flags |= flags;
     }
 
-    fn mean(&self) -> [T; 5] {
+    fn mean(&self) -> [T; 4] {
         let mut m = self.base;
         if self.n > 0 {
             let inv = T::ONE / T::from_i32(self.n as i32);
-            for i in 0..5 {
+            for i in 0..4 {
                 m[i] += self.sum[i] * inv;
             }
         }
@@ -928,9 +928,10 @@ impl<T: SineTable> Controller<T> {
                     let f = Self::est_flags(info);
                     *st |= f;
                     if t >= self.dive.readout_from {
+                        // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
                         self.dive
                             .acc
-                            .add([th[0], th[1], th[2], h - self.reg.z().x, self.dive.z0], f);
+                            .add([th[0], th[1], th[2], h - self.reg.z().x], f);
                         *st |= status::READOUT;
                     }
                 }
@@ -1002,7 +1003,8 @@ impl<T: SineTable> Controller<T> {
             c_ns_per_m: m[0] * self.p.damping_to_si,
             k_n_per_m: m[1],
             offset_n: m[2] * to_m,
-            centre_m: m[4] * to_m,
+            // The mean of the constant z₀ over the read-out (0 without samples).
+            centre_m: if s.acc.n > 0 { s.z0 } else { T::ZERO } * to_m,
             depth_m: m[3] * to_m,
             regressor: p.regressor,
             flags: s.flags | s.acc.flags,
@@ -1098,8 +1100,9 @@ impl<T: SineTable> Controller<T> {
             Phase::Settle | Phase::Forward | Phase::Backward | Phase::Turn => {
                 *st |= status::CONTACT;
                 let mut f = 0;
-                // The contact detector's low-pass keeps running: it gives the slow force.
-                self.contact.update(&self.p.contact, d, z);
+                // The contact detector's low-pass keeps running: it gives the slow force. (Its
+                // state is the contact confirmed at the approach, latched until the next move.)
+                self.contact.lowpass(&self.p.contact, d);
                 let w = self.reg.w(&self.p.reg);
                 let phi = self.reg.phi_sve(self.sve.z0);
                 // θ̂₂ ≥ k_min > 0 by projection, so the divisions are safe.
@@ -1138,7 +1141,7 @@ impl<T: SineTable> Controller<T> {
                 }
                 *st |= f;
                 self.sve.u_cmd = u_d;
-                if self.sve_sequence(t, [th[0], th[1], h_hat, depth, T::ZERO], f) {
+                if self.sve_sequence(t, [th[0], th[1], h_hat, depth], f) {
                     *st |= status::READOUT;
                 }
                 u_d + self.exc.next(&self.p.sve.exc)
@@ -1160,7 +1163,7 @@ impl<T: SineTable> Controller<T> {
     /// The raster: settle, then forward, backward, turn per line; pixel bins along the way.
     #[inline(always)]
     /// Returns true when the sample went into a pixel.
-    fn sve_sequence(&mut self, t: u32, v: [T; 5], flags: u32) -> bool {
+    fn sve_sequence(&mut self, t: u32, v: [T; 4], flags: u32) -> bool {
         let mut read = false;
         match self.phase {
             Phase::Settle if t >= self.p.sve.settle_samples => self.begin_line(true),
