@@ -749,7 +749,7 @@ impl<T: SineTable> Controller<T> {
     }
 
     /// One loop sample: the measured deflection `d_m` (m) in, the next outputs out.
-    #[inline]
+    #[inline(always)]
     pub fn step(&mut self, d_m: T) -> StepOut<T> {
         self.samples += 1;
         let mut st = 0u32;
