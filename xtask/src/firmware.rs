@@ -864,9 +864,12 @@ fn insns(b: &BenchFrame, ipt: f64) -> Result<(f64, Option<f64>)> {
     Ok((per, step))
 }
 
-/// Period of the bench timer: long enough for any interrupt of < 2000 instructions.
-fn bench_period(ipt: f64) -> u32 {
-    ((4000.0 / ipt).ceil() as u32).max(4)
+/// Period of the bench timer: twice the longest interrupt expected on the machine (2 000
+/// instructions on the M7, 20 000 with the M3's soft float), so that the idle loop runs between
+/// interrupts and sees the window end before another interrupt starts.
+fn bench_period(m: Machine, ipt: f64) -> u32 {
+    let insns = if m == M3 { 40_000.0 } else { 4_000.0 };
+    ((insns / ipt).ceil() as u32).max(4)
 }
 
 /// Instructions per loop interrupt with the core stopped (its idle `step`, synthetic ADC).
@@ -876,7 +879,7 @@ pub fn bench_idle(m: Machine, elf: &Path, steps: u32, shift: u32) -> Result<Benc
     link.command_ok(&Cmd::Bench {
         mode: BenchMode::Stopped,
         steps,
-        period_ticks: bench_period(ipt),
+        period_ticks: bench_period(m, ipt),
     })
     .map_err(io)?;
     let b = take_bench(&mut link)?;
@@ -1027,7 +1030,7 @@ pub fn bench_window(
     link.command_ok(&Cmd::Bench {
         mode: BenchMode::Continue { time_step: true },
         steps,
-        period_ticks: bench_period(ipt),
+        period_ticks: bench_period(m, ipt),
     })
     .map_err(io)?;
     let b = take_bench(&mut link)?;
