@@ -104,6 +104,7 @@ pub struct Estimator<T, const N: usize> {
 /// `x` is finite: `x − x` is 0 for every finite x and NaN for ±∞ and NaN (two float
 /// instructions, where the bit test moves the value to an integer register first).
 #[inline(always)]
+#[allow(clippy::eq_op)] // x − x is the point: 0 for finite x, NaN otherwise.
 fn finite<T: Real>(x: T) -> bool {
     x - x == T::ZERO
 }
