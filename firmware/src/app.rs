@@ -257,8 +257,10 @@ pub fn run() -> ! {
                 Command::SetParam { id, value } => set_param(&mut scales, &mut staged, id, value),
                 Command::ApplyConfig => match apply_config(&scales, &staged) {
                     Ok(()) => ack::OK,
-                    Err(Some(rejected)) => {
-                        tx.send(&Telemetry::ConfigRejected(rejected));
+                    Err(Some(e)) => {
+                        tx.send(&Telemetry::ConfigRejected(ConfigRejectedFrame::new(
+                            e.field, e.value, e.reason,
+                        )));
                         ack::INVALID
                     }
                     Err(None) => ack::BUSY,
@@ -358,7 +360,7 @@ fn set_param(scales: &mut BoardScales, staged: &mut StagedConfig, id: u16, value
 fn apply_config(
     scales: &BoardScales,
     staged: &StagedConfig,
-) -> Result<(), Option<ConfigRejectedFrame>> {
+) -> Result<(), Option<core_glue::ConfigError>> {
     // A Start/Stop the loop has not taken yet (no samples are coming) takes effect now.
     let running = with_loop(|l| {
         if let Some(cmd) = COMMANDS.take() {
@@ -381,7 +383,7 @@ fn apply_config(
         }
         Err(e) => {
             defmt::warn!("configuration refused: {=str}", e.field);
-            Err(Some(ConfigRejectedFrame::new(e.field, e.value, e.reason)))
+            Err(Some(e))
         }
     }
 }

@@ -96,6 +96,21 @@ pub fn root() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from("."))
 }
 
+/// Cargo's target directory (`CARGO_TARGET_DIR`, or `target` in the workspace root).
+pub fn target_dir() -> PathBuf {
+    match std::env::var_os("CARGO_TARGET_DIR") {
+        Some(d) => {
+            let d = PathBuf::from(d);
+            if d.is_absolute() {
+                d
+            } else {
+                root().join(d)
+            }
+        }
+        None => root().join("target"),
+    }
+}
+
 fn cargo() -> String {
     std::env::var("CARGO").unwrap_or_else(|_| "cargo".into())
 }
@@ -195,8 +210,7 @@ pub fn build_for(target: &str, board: Board, extra_features: &[&str]) -> Result<
         cmd.args(["--features", f]);
     }
     run(&mut cmd)?;
-    let elf = root()
-        .join("target")
+    let elf = target_dir()
         .join(target)
         .join("release")
         .join("visco-firmware");
@@ -1158,9 +1172,9 @@ pub const GOAL_DIVE: f64 = 150.0;
 pub const GOAL_SVE: f64 = 200.0;
 /// What `firmware-test` allows (the measured figures when last optimised, plus 1 %): more is a
 /// regression and fails the test. Lower them when the loop gets cheaper.
-pub const CEILING_DIVE: f64 = 520.0;
+pub const CEILING_DIVE: f64 = 496.0;
 /// See [`CEILING_DIVE`].
-pub const CEILING_SVE: f64 = 595.0;
+pub const CEILING_SVE: f64 = 559.0;
 
 // ---------------------------------------------------------------- report
 
@@ -1708,7 +1722,7 @@ pub fn profile(window: &str, steps: u32) -> Result<()> {
             }
         }
     }
-    let path = PathBuf::from(format!("target/profile-{window}.annotated"));
+    let path = target_dir().join(format!("profile-{window}.annotated"));
     std::fs::write(&path, out).map_err(|e| e.to_string())?;
     per_fn.sort_by(|a, b| b.1.total_cmp(&a.1));
     println!("{window}: {total:.1} instructions per loop interrupt (logged, {steps} interrupts from sample {start})");
