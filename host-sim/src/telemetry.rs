@@ -7,7 +7,8 @@
 //! them to the caller in stream order as well, and a recording written from a stream with
 //! losses says so in its metadata ([`write_recording_csv`]).
 //!
-//! This file depends only on `std` and `visco-protocol`, so `xtask` can include it too.
+//! This file depends only on `std` and `visco-protocol`. Replay and lockstep against the host
+//! build of the core, with realistic inputs, are in [`crate::replay`].
 
 use std::collections::VecDeque;
 use std::fmt;
