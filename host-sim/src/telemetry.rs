@@ -259,6 +259,12 @@ impl<W: Write> CommandWriter<W> {
 /// `t_s,u_m,d_m,x_m,y_m` and the firmware's extra columns (`u_code,status,c,k,h`), which
 /// readers keep and ignore. `metadata` supplies the keys the telemetry does not carry
 /// (mode, cantilever, tip radius, …).
+///
+/// A row pairs the deflection of a sample with the U, X, Y the DACs held while it was taken:
+/// the outputs of the *previous* step (a step's U is applied from the next sample on). So a
+/// row needs its predecessor: the first sample, and a sample after a missing one, give no
+/// row (`# telemetry_samples_missing` counts the missing ones). `u_code`, `status` and the
+/// estimates are those of the step that took the row's D.
 pub fn write_recording_csv<W: Write>(
     mut out: W,
     steps: &[StepFrame],
@@ -280,15 +286,19 @@ pub fn write_recording_csv<W: Write>(
     };
     writeln!(out, "# telemetry_samples_missing: {missing_samples}")?;
     writeln!(out, "t_s,u_m,d_m,x_m,y_m,u_code,status,c,k,h")?;
-    for s in steps {
+    for w in steps.windows(2) {
+        let (held, s) = (&w[0], &w[1]);
+        if held.index.wrapping_add(1) != s.index {
+            continue;
+        }
         writeln!(
             out,
             "{:e},{:e},{:e},{:e},{:e},{},{},{:e},{:e},{:e}",
             s.index as f64 / sample_rate_hz,
-            s.u_m,
+            held.u_m,
             s.d_m,
-            s.x_m,
-            s.y_m,
+            held.x_m,
+            held.y_m,
             s.u_code,
             s.status,
             s.estimates[0],
@@ -1000,7 +1010,8 @@ mod tests {
         assert!(text.contains("# telemetry_frames_lost: 1"));
         assert!(text.contains("# telemetry_samples_missing: 1"));
         assert!(text.contains("# mode: dive"));
-        assert_eq!(text.lines().filter(|l| !l.starts_with('#')).count(), 10);
+        // Header and one row per sample with its predecessor: 1, 2, 3, 6, 7, 8, 9 (not 0, 5).
+        assert_eq!(text.lines().filter(|l| !l.starts_with('#')).count(), 1 + 7);
     }
 
     #[test]
