@@ -12,11 +12,11 @@ use core::cell::UnsafeCell;
 use core::sync::atomic::Ordering;
 use visco_firmware::core_glue::{self, CoreCommand, LoopCore, StagedConfig};
 use visco_firmware::loop_body::{CommandSlot, Counters, Item, TELEMETRY_DEPTH};
-use visco_firmware::scale::Scale;
 use visco_firmware::spsc::{Consumer, Spsc};
 use visco_protocol::{
-    ack, frame, param, Command, FrameDecoder, PerSample, SeqTracker, StatusFrame, StepBlockFrame,
-    StepDigest, StepFrame, Telemetry, MAX_FEED, MAX_WIRE, PROTOCOL_VERSION,
+    ack, frame, param, Command, ConfigRejectedFrame, FrameDecoder, PerSample, SeqTracker,
+    StatusFrame, StepBlockFrame, StepDigest, StepFrame, Telemetry, MAX_FEED, MAX_WIRE,
+    PROTOCOL_VERSION,
 };
 
 /// The loop state, owned by the loop interrupt (see the module comment).
@@ -149,7 +149,7 @@ impl<L: Link> Tx<L> {
         let i = self.block.len as usize;
         if let (Some(c), Some(st)) = (self.block.u_codes.get_mut(i), self.block.status.get_mut(i)) {
             *c = s.u_code.clamp(-32768, 32767) as i16;
-            *st = s.status;
+            *st = s.status as u16;
             self.digest.add(s);
             self.block.len += 1;
         }
@@ -169,11 +169,10 @@ impl<L: Link> Tx<L> {
     }
 }
 
-/// Board-level configuration staged by `SetParam`.
+/// Board-level configuration staged by `SetParam`: the ADC's metres per code (`None`:
+/// derived from the core's full scale).
 struct BoardScales {
-    adc: Scale,
-    dac: Scale,
-    lateral: Scale,
+    adc: Option<f64>,
 }
 
 pub fn run() -> ! {
@@ -187,26 +186,14 @@ pub fn run() -> ! {
     let Some((tel_tx, mut tel_rx)) = TELEMETRY.split() else {
         board::fatal(4)
     };
-    // Defaults: 1 nm per code everywhere, until the host configures the board.
-    let (Some(unit), Some(lat)) = (Scale::new_16bit(1e-9), Scale::new_16bit(1e-9)) else {
-        board::fatal(5)
-    };
-    let mut scales = BoardScales {
-        adc: unit,
-        dac: unit,
-        lateral: lat,
-    };
+    let mut scales = BoardScales { adc: None };
     let mut staged = StagedConfig::new();
-    let core = core_glue::build_core(&staged, &scales.dac).ok();
-    let state = board::make_loop(
-        &mut b,
-        scales.adc,
-        scales.lateral,
-        core,
-        tel_tx,
-        &COMMANDS,
-        &COUNTERS,
-    );
+    // The default configuration (`Config::paper` at 1 MHz), so that the loop can run at once.
+    let (core, adc) = match core_glue::build_core(&staged, scales.adc) {
+        Ok(b) => (b.core, b.adc),
+        Err(_) => board::fatal(5),
+    };
+    let state = board::make_loop(&mut b, adc, core, tel_tx, &COMMANDS, &COUNTERS);
     board::mask_loop();
     // SAFETY: the loop interrupt is masked.
     unsafe { LOOP.set(state) };
@@ -268,14 +255,17 @@ pub fn run() -> ! {
             let code = match cmd {
                 Command::Ping { .. } => ack::OK,
                 Command::SetParam { id, value } => set_param(&mut scales, &mut staged, id, value),
-                Command::ApplyConfig => apply_config(&scales, &staged),
-                Command::Start(mode) => {
-                    if with_loop(|l| l.core.is_some()) == Some(true) {
-                        push_cmd(CoreCommand::Start(mode))
-                    } else {
-                        ack::INVALID // no configuration applied yet
+                Command::ApplyConfig => match apply_config(&scales, &staged) {
+                    Ok(()) => ack::OK,
+                    Err(Some(e)) => {
+                        tx.send(&Telemetry::ConfigRejected(ConfigRejectedFrame::new(
+                            e.field, e.value, e.reason,
+                        )));
+                        ack::INVALID
                     }
-                }
+                    Err(None) => ack::BUSY,
+                },
+                Command::Start(mode) => push_cmd(CoreCommand::Start(mode)),
                 Command::Stop => push_cmd(CoreCommand::Stop),
                 Command::SetSource(src) => board::set_source(&mut b, src),
                 Command::Feed(block) => {
@@ -350,58 +340,64 @@ fn push_cmd(c: CoreCommand) -> u8 {
 }
 
 fn set_param(scales: &mut BoardScales, staged: &mut StagedConfig, id: u16, value: f64) -> u8 {
-    let scale = || Scale::new_16bit(value as f32);
-    let slot = match id {
-        param::ADC_METRES_PER_CODE => &mut scales.adc,
-        param::DAC_METRES_PER_CODE => &mut scales.dac,
-        param::LATERAL_METRES_PER_CODE => &mut scales.lateral,
-        _ => {
-            return if staged.stage(id, value) {
-                ack::OK
-            } else {
-                ack::INVALID
-            }
-        }
-    };
-    match scale() {
-        Some(s) => {
-            *slot = s;
+    if id == param::ADC_METRES_PER_CODE {
+        return if value.is_finite() && value != 0.0 {
+            scales.adc = Some(value);
             ack::OK
-        }
-        None => ack::INVALID,
+        } else {
+            ack::INVALID
+        };
+    }
+    if staged.stage(id, value) {
+        ack::OK
+    } else {
+        ack::INVALID
     }
 }
 
-fn apply_config(scales: &BoardScales, staged: &StagedConfig) -> u8 {
-    let running = with_loop(|l| l.core.as_ref().and_then(|c| c.mode()).is_some());
+/// Builds the core from the staged configuration and swaps it in. `Err(None)`: the core is
+/// running (stop it first); `Err(Some(_))`: the configuration was refused, with the field.
+fn apply_config(
+    scales: &BoardScales,
+    staged: &StagedConfig,
+) -> Result<(), Option<core_glue::ConfigError>> {
+    // A Start/Stop the loop has not taken yet (no samples are coming) takes effect now.
+    let running = with_loop(|l| {
+        if let Some(cmd) = COMMANDS.take() {
+            l.core.apply_command(cmd);
+        }
+        l.core.running_mode().is_some()
+    });
     if running != Some(false) {
-        return ack::BUSY;
+        return Err(None);
     }
     // Built here, in thread mode; the loop only receives the finished core.
-    match core_glue::build_core(staged, &scales.dac) {
-        Ok(core) => {
-            let (adc, lateral) = (scales.adc, scales.lateral);
+    match core_glue::build_core(staged, scales.adc) {
+        Ok(b) => {
+            let (core, adc) = (b.core, b.adc);
             with_loop(move |l| {
-                l.core = Some(core);
-                board::set_scales(l, adc, lateral);
+                l.core = core;
+                board::set_scales(l, adc);
             });
-            ack::OK
+            Ok(())
         }
-        Err(_) => ack::INVALID,
+        Err(e) => {
+            defmt::warn!("configuration refused: {=str}", e.field);
+            Err(Some(e))
+        }
     }
 }
 
 fn status(rx_bad: u32, rx_seq: &SeqTracker) -> StatusFrame {
-    let (state, estimates) = with_loop(|l| match l.core.as_ref() {
-        Some(c) => (
-            match c.mode() {
+    let (state, estimates) = with_loop(|l| {
+        (
+            match l.core.running_mode() {
                 None => 0,
                 Some(core_glue::Mode::Dive) => 1,
                 Some(core_glue::Mode::Sve) => 2,
             },
-            c.estimates(),
-        ),
-        None => (0, [0.0; 3]),
+            l.core.estimate_array(),
+        )
     })
     .unwrap_or((0, [0.0; 3]));
     StatusFrame {

@@ -8,6 +8,7 @@
 #[cfg(test)]
 extern crate std;
 
+pub mod core_config;
 pub mod core_glue;
 pub mod drivers;
 pub mod loop_body;

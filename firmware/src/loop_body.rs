@@ -5,7 +5,7 @@
 //! and the step skipped; a full telemetry queue is counted, and the main loop turns that
 //! count into a gap in the frame sequence numbers, so the host sees the loss too.
 
-use crate::core_glue::{CoreCommand, LoopCore, Mode};
+use crate::core_glue::{CoreCommand, LoopCore, Mode, RECORD_READY};
 use crate::spsc::Producer;
 use core::sync::atomic::{AtomicU32, AtomicU8, Ordering};
 use visco_protocol::{RecordFrame, StepFrame};
@@ -22,10 +22,10 @@ pub trait UOutput {
     fn write(&mut self, code: i32) -> u16;
 }
 
-/// The lateral outputs X and Y (metres → codes → DACs).
+/// The lateral outputs X and Y (the core's DAC codes, signed relative to mid-scale).
 pub trait XyOutput {
     /// Writes new lateral setpoints (called only when they change).
-    fn write(&mut self, x_m: f32, y_m: f32);
+    fn write(&mut self, x_code: i32, y_code: i32);
 }
 
 /// What the loop reports.
@@ -115,8 +115,8 @@ pub struct LoopState<A, U, X, C> {
     pub u_out: U,
     /// Lateral outputs.
     pub xy_out: X,
-    /// The identification core (`None` until a configuration was applied: no steps).
-    pub core: Option<C>,
+    /// The identification core.
+    pub core: C,
     /// Loop → main telemetry.
     pub telemetry: Producer<'static, Item, TELEMETRY_DEPTH>,
     /// Main → loop commands.
@@ -125,9 +125,10 @@ pub struct LoopState<A, U, X, C> {
     pub counters: &'static Counters,
     /// Emit a Step item per sample.
     pub per_sample: bool,
-    /// Sample index (since the source was last set).
-    pub index: u32,
-    last_xy: (u32, u32),
+    /// The sample counter's value when the source was last set: the index of a sample in
+    /// the telemetry is `counters.samples − index_base` (one counter per sample, not two).
+    pub index_base: u32,
+    last_xy: (i32, i32),
 }
 
 impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
@@ -137,7 +138,7 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
         adc: A,
         u_out: U,
         xy_out: X,
-        core: Option<C>,
+        core: C,
         telemetry: Producer<'static, Item, TELEMETRY_DEPTH>,
         commands: &'static CommandSlot,
         counters: &'static Counters,
@@ -151,21 +152,18 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
             commands,
             counters,
             per_sample: false,
-            index: 0,
-            // NaN bits: the first step always writes the lateral outputs.
-            last_xy: (u32::MAX, u32::MAX),
+            index_base: 0,
+            // Out of any DAC's range: the first step always writes the lateral outputs.
+            last_xy: (i32::MIN, i32::MIN),
         }
     }
 
     /// One loop sample. Called from the loop interrupt only.
     #[inline(always)]
     pub fn on_sample(&mut self) {
-        let Some(core) = self.core.as_mut() else {
-            bump(&self.counters.starved);
-            return;
-        };
+        let core = &mut self.core;
         if let Some(cmd) = self.commands.take() {
-            core.command(cmd);
+            core.apply_command(cmd);
         }
         let Some(d) = self.adc.sample() else {
             bump(&self.counters.starved);
@@ -175,47 +173,59 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
         let dac_word = self.u_out.write(out.u_code);
         // Lateral DACs are written only when the setpoint moves (once per pixel in SVE):
         // three SPI writes per sample would not fit 1 MHz.
-        let xy = (out.x_m.to_bits(), out.y_m.to_bits());
+        let xy = (out.x_code, out.y_code);
         if xy != self.last_xy {
             self.last_xy = xy;
-            self.xy_out.write(out.x_m, out.y_m);
+            self.xy_out.write(out.x_code, out.y_code);
         }
         if self.per_sample {
-            let estimates = core.estimates();
-            self.emit(Item::Step(StepFrame {
-                index: self.index,
-                d_m: d,
-                u_code: out.u_code,
-                dac_word,
-                u_m: out.u_m,
-                x_m: out.x_m,
-                y_m: out.y_m,
-                status: out.status,
-                estimates,
-            }));
+            let estimates = self.core.estimate_array();
+            let index = self.index();
+            emit(
+                &mut self.telemetry,
+                self.counters,
+                Item::Step(StepFrame {
+                    index,
+                    d_m: d,
+                    u_code: out.u_code,
+                    dac_word,
+                    u_m: out.u_m,
+                    x_m: out.x_m,
+                    y_m: out.y_m,
+                    status: out.status,
+                    estimates,
+                }),
+            );
         }
-        if let Some(r) = out.record {
-            self.emit(Item::Record(RecordFrame {
-                index: self.index,
-                mode: match r.mode {
-                    crate::core_glue::Mode::Dive => 1,
-                    crate::core_glue::Mode::Sve => 2,
-                },
-                estimates: r.estimates,
-                x_m: r.x_m,
-                y_m: r.y_m,
-                status: r.status,
-            }));
+        if out.status & RECORD_READY != 0 {
+            let index = self.index();
+            if let Some(r) = self.core.take_record(index) {
+                emit(&mut self.telemetry, self.counters, Item::Record(r));
+            }
         }
-        self.index = self.index.wrapping_add(1);
         bump(&self.counters.samples);
     }
 
+    /// The index of the sample being stepped (since the source was last set).
     #[inline(always)]
-    fn emit(&mut self, item: Item) {
-        if self.telemetry.push(item).is_err() {
-            bump(&self.counters.telemetry_dropped);
-        }
+    pub fn index(&self) -> u32 {
+        self.counters
+            .samples
+            .load(Ordering::Relaxed)
+            .wrapping_sub(self.index_base)
+    }
+
+    /// Restarts the sample index at 0 (a new source).
+    pub fn reset_index(&mut self) {
+        self.index_base = self.counters.samples.load(Ordering::Relaxed);
+    }
+}
+
+/// Queues a telemetry item, or counts it as dropped when the queue is full.
+#[inline(always)]
+fn emit(q: &mut Producer<'static, Item, TELEMETRY_DEPTH>, counters: &Counters, item: Item) {
+    if q.push(item).is_err() {
+        bump(&counters.telemetry_dropped);
     }
 }
 
@@ -223,7 +233,6 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
 mod tests {
     use super::*;
     use crate::core_glue::{build_core, StagedConfig};
-    use crate::scale::Scale;
     use crate::spsc::Spsc;
     use std::vec::Vec;
 
@@ -247,9 +256,9 @@ mod tests {
         }
     }
     #[derive(Default)]
-    struct Xy(Vec<(f32, f32)>);
+    struct Xy(Vec<(i32, i32)>);
     impl XyOutput for Xy {
-        fn write(&mut self, x: f32, y: f32) {
+        fn write(&mut self, x: i32, y: i32) {
             self.0.push((x, y));
         }
     }
@@ -260,37 +269,46 @@ mod tests {
         static CMD: CommandSlot = CommandSlot::new();
         static COUNTERS: Counters = Counters::new();
         let (tp, mut tc) = TEL.split().unwrap();
-        let scale = Scale::new_16bit(1e-9).unwrap();
-        let mut cfg = StagedConfig::new();
-        assert!(cfg.stage(crate::core_glue::standin_param::RECORD_EVERY, 10.0));
-        let core = build_core(&cfg, &scale).unwrap();
-        let input: Vec<f32> = (0..100).map(|i| i as f32 * 1e-10).collect();
+        let built = build_core(&StagedConfig::new(), None).unwrap();
+        // Free cantilever: D = 0; the core moves to the first tap, then approaches.
+        let n = 3000;
         let mut st = LoopState::new(
-            Fed(input),
+            Fed(std::vec![0.0; n]),
             Words::default(),
             Xy::default(),
-            Some(core),
+            built.core,
             tp,
             &CMD,
             &COUNTERS,
         );
         st.per_sample = true;
         CMD.post(CoreCommand::Stop);
-        CMD.post(CoreCommand::Start(Mode::Sve)); // the latest intent wins
-        for _ in 0..101 {
+        CMD.post(CoreCommand::Start(Mode::Dive)); // the latest intent wins
+        for _ in 0..n + 1 {
             st.on_sample();
         }
-        assert_eq!(COUNTERS.samples.load(Ordering::Relaxed), 100);
+        assert_eq!(COUNTERS.samples.load(Ordering::Relaxed), n as u32);
+        assert_eq!(st.index(), n as u32);
+        st.reset_index();
+        assert_eq!(st.index(), 0);
         assert_eq!(COUNTERS.starved.load(Ordering::Relaxed), 1);
-        // 100 steps + 10 records = 110 items, 64 fit: 46 dropped and counted.
-        assert_eq!(COUNTERS.telemetry_dropped.load(Ordering::Relaxed), 46);
-        let mut n = 0;
-        while tc.pop().is_some() {
-            n += 1;
+        // One Step item per sample, 64 fit: the rest is dropped and counted.
+        assert_eq!(
+            COUNTERS.telemetry_dropped.load(Ordering::Relaxed),
+            n as u32 - TELEMETRY_DEPTH as u32
+        );
+        let mut k = 0;
+        while let Some(item) = tc.pop() {
+            match item {
+                Item::Step(s) => assert_eq!(s.index, k),
+                Item::Record(_) => panic!("no tap finishes in 3 ms"),
+            }
+            k += 1;
         }
-        assert_eq!(n, 64);
-        assert_eq!(st.u_out.0.len(), 100);
-        assert!(st.xy_out.0.len() >= 2);
-        assert_eq!(st.core.as_ref().unwrap().mode(), Some(Mode::Sve));
+        assert_eq!(k, TELEMETRY_DEPTH as u32);
+        assert_eq!(st.u_out.0.len(), n);
+        // The core starts above the first tap: the lateral DACs are written once, then hold.
+        assert_eq!(st.xy_out.0.len(), 1);
+        assert_eq!(st.core.running_mode(), Some(Mode::Dive));
     }
 }

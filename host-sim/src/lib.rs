@@ -7,5 +7,6 @@ pub mod identify;
 pub mod output;
 pub mod plant;
 pub mod recording;
+pub mod replay;
 pub mod sample;
 pub mod telemetry;

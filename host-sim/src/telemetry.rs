@@ -7,7 +7,8 @@
 //! them to the caller in stream order as well, and a recording written from a stream with
 //! losses says so in its metadata ([`write_recording_csv`]).
 //!
-//! This file depends only on `std` and `visco-protocol`, so `xtask` can include it too.
+//! This file depends only on `std` and `visco-protocol`. Replay and lockstep against the host
+//! build of the core, with realistic inputs, are in [`crate::replay`].
 
 use std::collections::VecDeque;
 use std::fmt;
@@ -258,6 +259,12 @@ impl<W: Write> CommandWriter<W> {
 /// `t_s,u_m,d_m,x_m,y_m` and the firmware's extra columns (`u_code,status,c,k,h`), which
 /// readers keep and ignore. `metadata` supplies the keys the telemetry does not carry
 /// (mode, cantilever, tip radius, …).
+///
+/// A row pairs the deflection of a sample with the U, X, Y the DACs held while it was taken:
+/// the outputs of the *previous* step (a step's U is applied from the next sample on). So a
+/// row needs its predecessor: the first sample, and a sample after a missing one, give no
+/// row (`# telemetry_samples_missing` counts the missing ones). `u_code`, `status` and the
+/// estimates are those of the step that took the row's D.
 pub fn write_recording_csv<W: Write>(
     mut out: W,
     steps: &[StepFrame],
@@ -279,15 +286,19 @@ pub fn write_recording_csv<W: Write>(
     };
     writeln!(out, "# telemetry_samples_missing: {missing_samples}")?;
     writeln!(out, "t_s,u_m,d_m,x_m,y_m,u_code,status,c,k,h")?;
-    for s in steps {
+    for w in steps.windows(2) {
+        let (held, s) = (&w[0], &w[1]);
+        if held.index.wrapping_add(1) != s.index {
+            continue;
+        }
         writeln!(
             out,
             "{:e},{:e},{:e},{:e},{:e},{},{},{:e},{:e},{:e}",
             s.index as f64 / sample_rate_hz,
-            s.u_m,
+            held.u_m,
             s.d_m,
-            s.x_m,
-            s.y_m,
+            held.x_m,
+            held.y_m,
             s.u_code,
             s.status,
             s.estimates[0],
@@ -337,6 +348,122 @@ pub struct ReplayOutput {
     pub stats: LinkStats,
     /// Wall time of the sample stream.
     pub elapsed: Duration,
+}
+
+/// Compares per-sample outputs bit for bit; the first differing sample index and a
+/// description, or `None` when identical (lengths included).
+pub fn first_difference(a: &[StepFrame], b: &[StepFrame]) -> Option<(usize, String)> {
+    let bits = |s: &StepFrame| {
+        (
+            s.index,
+            s.d_m.to_bits(),
+            s.u_code,
+            s.dac_word,
+            s.u_m.to_bits(),
+            s.x_m.to_bits(),
+            s.y_m.to_bits(),
+            s.status,
+            s.estimates.map(f32::to_bits),
+        )
+    };
+    for (i, (x, y)) in a.iter().zip(b).enumerate() {
+        if bits(x) != bits(y) {
+            return Some((i, format!("firmware {x:?}\n host    {y:?}")));
+        }
+    }
+    if a.len() != b.len() {
+        return Some((
+            a.len().min(b.len()),
+            format!("lengths differ: {} vs {}", a.len(), b.len()),
+        ));
+    }
+    None
+}
+
+/// Checks compact blocks against full frames computed elsewhere (the host): the blocks must
+/// cover every sample in order and each must match bit for bit. The first failing sample
+/// and why, or `None`.
+pub fn check_blocks(blocks: &[StepBlockFrame], reference: &[StepFrame]) -> Option<(usize, String)> {
+    let mut next = 0usize;
+    for b in blocks {
+        let first = b.first_index as usize;
+        let end = first + b.len as usize;
+        if first != next {
+            return Some((next, format!("samples {next}..{first} missing")));
+        }
+        match reference.get(first..end) {
+            Some(r) if b.matches(r) => {}
+            Some(r) => {
+                let at = (0..r.len()).find(|&i| {
+                    b.u_codes[i] != r[i].u_code.clamp(-32768, 32767) as i16
+                        || b.status[i] != r[i].status as u16
+                });
+                return Some((
+                    first,
+                    match at {
+                        Some(i) => format!(
+                            "sample {}: firmware u_code {} status {:#x}, host u_code {} status {:#x}",
+                            first + i,
+                            b.u_codes[i],
+                            b.status[i],
+                            r[i].u_code,
+                            r[i].status
+                        ),
+                        None => format!(
+                            "samples {first}..{end}: same DAC codes and status flags, different \
+                             digest (U in metres, X/Y, phase or estimates differ): rerun with \
+                             full per-sample frames"
+                        ),
+                    },
+                ));
+            }
+            None => return Some((first, format!("block {first}..{end} beyond the input"))),
+        }
+        next = end;
+    }
+    (next != reference.len()).then(|| (next, format!("samples {next}.. missing")))
+}
+
+/// Compares record frames bit for bit (NaN-safe); the first differing one, or `None`.
+pub fn first_record_difference(a: &[RecordFrame], b: &[RecordFrame]) -> Option<(usize, String)> {
+    let bits = |r: &RecordFrame| {
+        (
+            r.index,
+            r.mode,
+            r.number,
+            r.ix,
+            r.iy,
+            r.variant,
+            [
+                r.x_m,
+                r.y_m,
+                r.c_ns_per_m,
+                r.k_n_per_m,
+                r.height_m,
+                r.depth_m,
+                r.offset_n,
+                r.centre_m,
+            ]
+            .map(f32::to_bits),
+            r.flags,
+            r.samples,
+        )
+    };
+    for (i, (x, y)) in a.iter().zip(b).enumerate() {
+        if bits(x) != bits(y) {
+            return Some((i, format!("firmware {x:?}\n host    {y:?}")));
+        }
+    }
+    (a.len() != b.len()).then(|| {
+        (
+            a.len().min(b.len()),
+            format!(
+                "{} records from the firmware, {} from the host",
+                a.len(),
+                b.len()
+            ),
+        )
+    })
 }
 
 /// The QEMU target: an emulated `mps2-an500` running the firmware image, its UART0 on a
@@ -525,11 +652,23 @@ pub mod qemu {
             }
         }
 
-        /// Like [`Self::command`], but an error unless the firmware answered OK.
+        /// Like [`Self::command`], but an error unless the firmware answered OK (with the
+        /// field and reason when it refused a configuration).
         pub fn command_ok(&mut self, cmd: &Command) -> io::Result<()> {
             match self.command(cmd)? {
                 ack::OK => Ok(()),
-                code => Err(err(format!("firmware refused {cmd:?}: ack code {code}"))),
+                code => {
+                    let why = self.backlog.iter().rev().find_map(|m| match m {
+                        Telemetry::ConfigRejected(c) => {
+                            Some(format!(": `{}` = {}: {}", c.field(), c.value, c.reason()))
+                        }
+                        _ => None,
+                    });
+                    Err(err(format!(
+                        "firmware refused {cmd:?}: ack code {code}{}",
+                        why.unwrap_or_default()
+                    )))
+                }
             }
         }
 
@@ -547,15 +686,18 @@ pub mod qemu {
             }
         }
 
-        /// Feeds `input` sample by sample in `mode` and collects the per-sample outputs:
-        /// one Step frame per sample (`PerSample::Full`) or compact blocks
-        /// (`PerSample::Blocks`, ~10× fewer bytes). Sending runs on a second thread so the
-        /// firmware never waits for the host.
+        /// Feeds `input` sample by sample, starting `mode` first (or, with `None`, carrying
+        /// on where the core is), and collects the per-sample outputs: one Step frame per
+        /// sample (`PerSample::Full`) or compact blocks (`PerSample::Blocks`, ~10× fewer
+        /// bytes). Sending runs on a second thread so the firmware never waits for the host.
+        /// The core is stopped afterwards unless `keep_running` (a replay continued later,
+        /// e.g. by a bench over the next samples). Sample indices start at 0.
         pub fn replay(
             &mut self,
             input: ReplayInput<'_>,
-            mode: Mode,
+            mode: Option<Mode>,
             per_sample: PerSample,
+            keep_running: bool,
         ) -> io::Result<ReplayOutput> {
             let n = input.len();
             if per_sample == PerSample::Off {
@@ -566,7 +708,9 @@ pub mod qemu {
                 per_sample,
                 status_every: 0,
             })?;
-            self.command_ok(&Command::Start(mode))?;
+            if let Some(mode) = mode {
+                self.command_ok(&Command::Start(mode))?;
+            }
             let mut frames = Vec::with_capacity(n.div_ceil(MAX_FEED));
             let mut first = 0usize;
             while first < n {
@@ -647,12 +791,20 @@ pub mod qemu {
                     blocks.len()
                 )));
             }
-            self.command_ok(&Command::Stop)?;
+            // Records queued with the last samples come before the next command's Ack.
+            if !keep_running {
+                self.command_ok(&Command::Stop)?;
+            }
             self.command_ok(&Command::SetTelemetry {
                 per_sample: PerSample::Off,
                 status_every: 0,
             })?;
             let status = Some(self.status()?);
+            records.extend(self.backlog.iter().filter_map(|m| match m {
+                Telemetry::Record(r) => Some(*r),
+                _ => None,
+            }));
+            self.backlog.retain(|m| !matches!(m, Telemetry::Record(_)));
             Ok(ReplayOutput {
                 steps,
                 blocks,
@@ -677,14 +829,26 @@ pub mod qemu {
             Ok(())
         }
 
-        /// One closed-loop sample (see [`Self::start_lockstep`]).
+        /// One closed-loop sample (see [`Self::start_lockstep`]): the deflection in metres,
+        /// handed to `step` as it is.
         pub fn lockstep(&mut self, d_m: f32) -> io::Result<StepFrame> {
             let mut m = [0f32; MAX_FEED];
             m[0] = d_m;
+            self.lockstep_feed(FeedSamples::Metres(m))
+        }
+
+        /// One closed-loop sample as an ADC code, converted by the firmware's ADC path.
+        pub fn lockstep_code(&mut self, code: i16) -> io::Result<StepFrame> {
+            let mut c = [0i16; MAX_FEED];
+            c[0] = code;
+            self.lockstep_feed(FeedSamples::Codes(c))
+        }
+
+        fn lockstep_feed(&mut self, samples: FeedSamples) -> io::Result<StepFrame> {
             self.writer.send(&Command::Feed(FeedBlock {
                 first_index: self.lockstep_index,
                 len: 1,
-                samples: FeedSamples::Metres(m),
+                samples,
             }))?;
             loop {
                 match self.next_message()? {
@@ -846,7 +1010,8 @@ mod tests {
         assert!(text.contains("# telemetry_frames_lost: 1"));
         assert!(text.contains("# telemetry_samples_missing: 1"));
         assert!(text.contains("# mode: dive"));
-        assert_eq!(text.lines().filter(|l| !l.starts_with('#')).count(), 10);
+        // Header and one row per sample with its predecessor: 1, 2, 3, 6, 7, 8, 9 (not 0, 5).
+        assert_eq!(text.lines().filter(|l| !l.starts_with('#')).count(), 1 + 7);
     }
 
     #[test]

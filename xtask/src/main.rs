@@ -11,20 +11,28 @@ fn usage() -> &'static str {
   panic-check                   prove no panic path is linked (panic-never handler + canary)
   calibrate [--shifts 0,3,6] [--m3]
                                 SysTick ticks vs counted instructions under -icount
-  bench [--steps N] [--shift S] [--m3]
-                                instructions per loop interrupt, DIVE and SVE (--m3: the
+  bench [--steps N] [--shift S] [--m3] [--window idle|dive-dwell|dive-readout|sve-scan]
+                                instructions per loop interrupt: core stopped, DIVE dwell, DIVE
+                                read-out, SVE scan, over closed-loop recordings (--m3: the
                                 thumbv7m-none-eabi build on mps2-an385, Cortex-M3, soft float)
-  replay [--samples N] [--full] replay N samples through QEMU, compare with the host bit for bit
-                                (compact blocks with digests, or --full: every field per sample)
-  firmware-report [--json FILE] [--replay-samples N]
+  replay [--full]               replay a closed-loop DIVE tap and SVE line through QEMU, compare
+                                with the host bit for bit (digests per block, or --full: every
+                                field of every sample)
+  firmware-report [--json FILE] [--no-replay]
                                 all measurements; JSON as documented in firmware/README.md
   test                          everything: install tools, fmt, no_std build, host tests,
                                 firmware tests (what CI runs)
   firmware-test                 what `cargo xtask test` runs for the firmware
   flash-stm32h743 [--chip C]    build the STM32H743 image and run it with probe-rs (RTT log)
   link-throughput               diagnostic: each direction of the QEMU UART link alone
-  lockstep [--samples N]        closed loop: host plant ↔ firmware under QEMU, one round trip
-                                per sample, compared with the host-only run
+  lockstep                      closed loop: host plant ↔ firmware under QEMU, one round trip
+                                per sample, an SVE line segment, compared with the host-only run
+  profile [--window W] [--steps N]
+                                executed instructions of the loop interrupt per function and
+                                per instruction (QEMU exec log) in a bench window: dive-dwell,
+                                dive-readout, sve-scan
+  core-digest                   CRC-32 of every output of closed-loop runs of the host core
+                                (equal before and after a core change: bit-identical results)
   defmt ELF STREAM              decode a defmt stream (e.g. QEMU semihosting output)"
 }
 
@@ -53,7 +61,7 @@ fn main() -> ExitCode {
     let result = (|| -> Result<(), String> {
         match task.as_str() {
             "firmware" => firmware::build_all().map(|_| ()),
-            "qemu-smoke" => firmware::qemu_smoke(num(rest, "--steps", 20_000)?),
+            "qemu-smoke" => firmware::qemu_smoke(num(rest, "--steps", 30_000)?),
             "panic-check" => firmware::panic_check(),
             "calibrate" => {
                 firmware::ensure_tools()?;
@@ -96,36 +104,35 @@ fn main() -> ExitCode {
                 };
                 let elf = firmware::build_for(m.target, firmware::Board::Qemu, &[])?;
                 println!("{} ({}), {}", m.machine, m.cpu, m.target);
-                for mode in [
-                    None,
-                    Some(visco_protocol::Mode::Dive),
-                    Some(visco_protocol::Mode::Sve),
-                ] {
-                    let b = firmware::bench_on(m, &elf, mode, steps, shift)?;
-                    let name = mode.map_or("core stopped".to_string(), |m| format!("{m:?}"));
-                    println!(
-                        "{name}: {:.3} instructions per loop interrupt (±{:.3}), {} steps, {} ticks, {} idle iterations",
-                        b.insns_per_step, b.resolution, b.steps, b.ticks, b.idle_iterations
-                    );
-                }
+                let b = firmware::bench_all(
+                    m,
+                    &elf,
+                    steps,
+                    shift,
+                    arg_value(rest, "--window").as_deref(),
+                )?;
+                firmware::print_bench(&b);
                 Ok(())
             }
             "replay" => {
                 firmware::ensure_tools()?;
-                let n = num(rest, "--samples", 100_000usize)?;
                 let elf = firmware::build(firmware::Board::Qemu, &[])?;
                 let mut ok = true;
-                for mode in [visco_protocol::Mode::Dive, visco_protocol::Mode::Sve] {
-                    let r = firmware::replay(&elf, mode, n, rest.iter().any(|a| a == "--full"))?;
+                for s in [firmware::dive_tap(), firmware::sve_line()] {
+                    let r = firmware::replay(&elf, &s, rest.iter().any(|a| a == "--full"))?;
                     println!(
-                        "replay {mode:?}: {} samples in {:.2} s = {:.0} samples/s, bit-identical {}, link: {}",
+                        "replay {}: {} samples, {:.0} samples/s, bit-identical {}, {} records \
+                         identical {}, reproduces the closed-loop recording {}, link: {}",
+                        r.name,
                         r.samples,
-                        r.output.elapsed.as_secs_f64(),
                         r.samples_per_s,
                         r.bit_identical,
-                        r.output.stats
+                        r.records,
+                        r.records_identical,
+                        r.reproduces_recording,
+                        r.stats
                     );
-                    ok &= r.bit_identical;
+                    ok &= r.bit_identical && r.records_identical;
                 }
                 if ok {
                     Ok(())
@@ -135,14 +142,19 @@ fn main() -> ExitCode {
             }
             "firmware-report" => firmware::firmware_report(
                 arg_value(rest, "--json").map(PathBuf::from).as_deref(),
-                num(rest, "--replay-samples", 100_000usize)?,
+                !rest.iter().any(|a| a == "--no-replay"),
             ),
             "firmware-test" => firmware::firmware_tests(),
             // Placeholder until the workspace's own `test` task lands: the host tests of the
             // default members, then the firmware tests.
             "test" => xtask::suite::run_all(),
             "link-throughput" => firmware::link_throughput(),
-            "lockstep" => firmware::lockstep(num(rest, "--samples", 5_000usize)?),
+            "lockstep" => firmware::lockstep().map(|_| ()),
+            "core-digest" => firmware::core_digest(),
+            "profile" => firmware::profile(
+                &arg_value(rest, "--window").unwrap_or_else(|| "sve-scan".into()),
+                num(rest, "--steps", 200u32)?,
+            ),
             "flash-stm32h743" => firmware::flash_stm32h743(
                 &arg_value(rest, "--chip").unwrap_or_else(|| "STM32H743ZITx".into()),
             ),

@@ -80,6 +80,12 @@ impl<T: Real> ContactDetector<T> {
         }
     }
 
+    /// Only the low-pass, for a confirmed contact (which `update` would leave as it is).
+    #[inline(always)]
+    pub fn lowpass(&mut self, p: &ContactParams<T>, d: T) {
+        self.lp += p.lowpass * (d - self.lp);
+    }
+
     /// Take one sample of D and the tip position Z = U − D at the same instant.
     #[inline(always)]
     pub fn update(&mut self, p: &ContactParams<T>, d: T, z: T) -> ContactState<T> {

@@ -36,6 +36,7 @@ use crate::geometry::mean_sag;
 use crate::prefilter::HighPass;
 use crate::regressor::{Regressor, RegressorParams};
 use crate::units;
+use core::num::{NonZeroU32, NonZeroU64};
 
 /// Bits of the status word returned with every step.
 pub mod status {
@@ -263,7 +264,8 @@ impl<T: crate::Real> Dac<T> {
 
 #[derive(Clone, Copy, Debug)]
 struct DiveParams<T> {
-    nx: u32,
+    /// Validated ≥ 1: the divisions by it need no zero test (and have no panic path).
+    nx: NonZeroU32,
     taps: u32,
     x0: T,
     y0: T,
@@ -288,7 +290,8 @@ struct DiveParams<T> {
 struct SveParams<T> {
     regressor: SveRegressor,
     lines: u32,
-    pixels: u32,
+    /// Validated ≥ 1 (see `DiveParams::nx`).
+    pixels: NonZeroU32,
     x0: T,
     x1: T,
     y0: T,
@@ -328,34 +331,34 @@ struct Params<T> {
     sve: SveParams<T>,
 }
 
-/// Sums for a read-out average. Values are accumulated as deviations from the first sample so
-/// that f32 keeps its precision over tens of thousands of samples.
+/// Sums for a read-out average of [c, k, h, depth]. Values are accumulated as deviations from
+/// the first sample so that f32 keeps its precision over tens of thousands of samples.
 #[derive(Clone, Copy, Debug, Default)]
 struct Accumulator<T> {
-    base: [T; 5],
-    sum: [T; 5],
+    base: [T; 4],
+    sum: [T; 4],
     n: u32,
     flags: u32,
 }
 
 impl<T: crate::Real> Accumulator<T> {
     #[inline(always)]
-    fn add(&mut self, v: [T; 5], flags: u32) {
+    fn add(&mut self, v: [T; 4], flags: u32) {
         if self.n == 0 {
             self.base = v;
         }
-        for i in 0..5 {
+        for i in 0..4 {
             self.sum[i] += v[i] - self.base[i];
         }
         self.n += 1;
         self.flags |= flags;
     }
 
-    fn mean(&self) -> [T; 5] {
+    fn mean(&self) -> [T; 4] {
         let mut m = self.base;
         if self.n > 0 {
             let inv = T::ONE / T::from_i32(self.n as i32);
-            for i in 0..5 {
+            for i in 0..4 {
                 m[i] += self.sum[i] * inv;
             }
         }
@@ -416,6 +419,8 @@ pub struct Controller<T> {
     y: T,
     x_code: i32,
     y_code: i32,
+    /// The last y quantised by `set_x_same_y`: (input, code, value).
+    y_quantized: (T, i32, T),
     d_last: T,
     reg: Regressor<T>,
     contact: ContactDetector<T>,
@@ -519,7 +524,7 @@ impl<T: SineTable> Controller<T> {
             max_travel: t(cfg.approach.max_travel_m * nm),
             u_start: t(cfg.approach.u_start_m * nm),
             dive: DiveParams {
-                nx: d.nx,
+                nx: NonZeroU32::new(d.nx).unwrap_or(NonZeroU32::MIN),
                 taps: d.nx * d.ny,
                 x0: t(d.x0_m * nm),
                 y0: t(d.y0_m * nm),
@@ -542,7 +547,7 @@ impl<T: SineTable> Controller<T> {
             sve: SveParams {
                 regressor: s.regressor,
                 lines: s.lines,
-                pixels: s.pixels,
+                pixels: NonZeroU32::new(s.pixels).unwrap_or(NonZeroU32::MIN),
                 x0: t(s.x0_m * nm),
                 x1: t(s.x1_m * nm),
                 y0: t(s.y0_m * nm),
@@ -617,6 +622,7 @@ impl<T: SineTable> Controller<T> {
             y,
             x_code,
             y_code,
+            y_quantized: (y, p.xy_dac.quantize(y).0, p.xy_dac.quantize(y).1),
             d_last: T::ZERO,
             reg: Regressor::at_rest(u, u),
             contact: ContactDetector::new(T::ZERO),
@@ -743,18 +749,20 @@ impl<T: SineTable> Controller<T> {
     }
 
     /// One loop sample: the measured deflection `d_m` (m) in, the next outputs out.
-    #[inline]
+    #[inline(always)]
     pub fn step(&mut self, d_m: T) -> StepOut<T> {
         self.samples += 1;
         let mut st = 0u32;
         // Input conditioning: the ADC cannot exceed its full scale; a non-finite value (a bus
         // glitch) is replaced by the last valid one. The estimator skips either.
         let d_in = d_m * self.p.to_internal;
-        let d = if d_in.is_finite() {
-            if d_in > self.p.d_max || d_in < -self.p.d_max {
-                st |= status::INPUT_SATURATED;
-            }
-            d_in.clamp_to(-self.p.d_max, self.p.d_max)
+        let d_max = self.p.d_max;
+        // The usual case first: inside the full scale (false for NaN).
+        let d = if d_in >= -d_max && d_in <= d_max {
+            d_in
+        } else if d_in.is_finite() {
+            st |= status::INPUT_SATURATED;
+            d_in.clamp_to(-d_max, d_max)
         } else {
             st |= status::INPUT_INVALID;
             self.d_last
@@ -803,6 +811,22 @@ impl<T: SineTable> Controller<T> {
         self.y_code = yc;
     }
 
+    /// `set_xy(x, self.y)`, the scan's case, with the y quantisation remembered: it is a
+    /// pure function of its input, and along a line y is the same sample after sample.
+    #[inline(always)]
+    fn set_x_same_y(&mut self, x: T) {
+        let (xc, xv, _) = self.p.xy_dac.quantize(x);
+        self.x = xv;
+        self.x_code = xc;
+        let y = self.y;
+        if y != self.y_quantized.0 {
+            let (yc, yv, _) = self.p.xy_dac.quantize(y);
+            self.y_quantized = (y, yc, yv);
+        }
+        self.y_code = self.y_quantized.1;
+        self.y = self.y_quantized.2;
+    }
+
     fn est_flags(info: UpdateInfo) -> u32 {
         let mut f = status::ESTIMATING;
         if info.at_bound {
@@ -829,20 +853,19 @@ impl<T: SineTable> Controller<T> {
     }
 
     fn dive_step(&mut self, d: T, z: T, input_ok: bool, st: &mut u32) -> T {
-        let p = self.p.dive;
         self.dive.t = self.dive.t.saturating_add(1);
         let t = self.dive.t;
         let mut u = self.dive.u_cmd;
         match self.phase {
             Phase::Move => {
-                let f = T::from_i32(t.min(p.move_samples) as i32) * p.inv_move;
+                let f = T::from_i32(t.min(self.p.dive.move_samples) as i32) * self.p.dive.inv_move;
                 let s = &self.dive;
                 let (x, y) = (
                     s.x_from + (s.x_to - s.x_from) * f,
                     s.y_from + (s.y_to - s.y_from) * f,
                 );
                 self.set_xy(x, y);
-                if t >= p.move_samples {
+                if t >= self.p.dive.move_samples {
                     self.contact = ContactDetector::new(d);
                     self.dive.approach_from = u;
                     self.phase = Phase::Approach;
@@ -867,7 +890,7 @@ impl<T: SineTable> Controller<T> {
             Phase::Indent => {
                 *st |= status::CONTACT;
                 let depth = self.dive.h - self.reg.z().x;
-                if depth >= p.indent {
+                if depth >= self.p.dive.indent {
                     self.start_dwell(t, u);
                 } else {
                     match self.approach_u(u, self.dive.approach_from) {
@@ -884,30 +907,35 @@ impl<T: SineTable> Controller<T> {
                 if t >= self.dive.estimate_from && input_ok {
                     let h = self.dive.h;
                     let w = self.reg.w(&self.p.reg);
-                    let (info, th) = match p.regressor {
+                    let (info, th) = match self.p.dive.regressor {
                         DiveRegressor::Paper => {
-                            let info = self.est2.update(&p.est2, w, &self.reg.phi_dive(h));
+                            let info =
+                                self.est2
+                                    .update(&self.p.dive.est2, w, &self.reg.phi_dive(h));
                             let th = self.est2.theta();
                             (info, [th[0], th[1], T::ZERO])
                         }
                         // Centred at the target tip position z₀ = h − indent (fixed for the tap).
                         DiveRegressor::Offset => {
-                            let info =
-                                self.est3
-                                    .update(&p.est3, w, &self.reg.phi_sve(self.dive.z0));
+                            let info = self.est3.update(
+                                &self.p.dive.est3,
+                                w,
+                                &self.reg.phi_sve(self.dive.z0),
+                            );
                             (info, self.est3.theta())
                         }
                     };
                     let f = Self::est_flags(info);
                     *st |= f;
                     if t >= self.dive.readout_from {
+                        // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
                         self.dive
                             .acc
-                            .add([th[0], th[1], th[2], h - self.reg.z().x, self.dive.z0], f);
+                            .add([th[0], th[1], th[2], h - self.reg.z().x], f);
                         *st |= status::READOUT;
                     }
                 }
-                if t + p.ramp_samples >= self.dive.dwell_end {
+                if t + self.p.dive.ramp_samples >= self.dive.dwell_end {
                     self.exc.set_on(false);
                 }
                 if t >= self.dive.dwell_end {
@@ -921,11 +949,11 @@ impl<T: SineTable> Controller<T> {
                     self.phase = Phase::Wait;
                 }
             }
-            Phase::Wait if t >= p.tap_samples => self.next_tap(),
+            Phase::Wait if t >= self.p.dive.tap_samples => self.next_tap(),
             _ => {}
         }
         self.dive.u_cmd = u;
-        u + self.exc.next(&p.exc)
+        u + self.exc.next(&self.p.dive.exc)
     }
 
     fn start_dwell(&mut self, t: u32, u_hold: T) {
@@ -975,7 +1003,8 @@ impl<T: SineTable> Controller<T> {
             c_ns_per_m: m[0] * self.p.damping_to_si,
             k_n_per_m: m[1],
             offset_n: m[2] * to_m,
-            centre_m: m[4] * to_m,
+            // The mean of the constant z₀ over the read-out (0 without samples).
+            centre_m: if s.acc.n > 0 { s.z0 } else { T::ZERO } * to_m,
             depth_m: m[3] * to_m,
             regressor: p.regressor,
             flags: s.flags | s.acc.flags,
@@ -1018,7 +1047,6 @@ impl<T: SineTable> Controller<T> {
     }
 
     fn sve_step(&mut self, d: T, z: T, input_ok: bool, st: &mut u32) -> T {
-        let p = self.p.sve;
         self.sve.t = self.sve.t.saturating_add(1);
         let t = self.sve.t;
         match self.phase {
@@ -1026,8 +1054,8 @@ impl<T: SineTable> Controller<T> {
                 let f = T::from_i32(t.min(self.p.dive.move_samples) as i32) * self.p.dive.inv_move;
                 let s = &self.dive;
                 let (x, y) = (
-                    s.x_from + (p.x0 - s.x_from) * f,
-                    s.y_from + (p.y0 - s.y_from) * f,
+                    s.x_from + (self.p.sve.x0 - s.x_from) * f,
+                    s.y_from + (self.p.sve.y0 - s.y_from) * f,
                 );
                 self.set_xy(x, y);
                 if t >= self.p.dive.move_samples {
@@ -1042,8 +1070,11 @@ impl<T: SineTable> Controller<T> {
                 let state = self.contact.update(&self.p.contact, d, z);
                 if let ContactState::Confirmed { h } = state {
                     self.sve.z0 = h;
-                    self.est3.restart(&p.est, p.theta0);
-                    self.est2.restart(&p.est2, [p.theta0[0], p.theta0[1]]);
+                    self.est3.restart(&self.p.sve.est, self.p.sve.theta0);
+                    self.est2.restart(
+                        &self.p.sve.est2,
+                        [self.p.sve.theta0[0], self.p.sve.theta0[1]],
+                    );
                     let w = self.reg.w(&self.p.reg);
                     let phi = self.reg.phi_sve(h);
                     self.sve.hp = [
@@ -1069,22 +1100,23 @@ impl<T: SineTable> Controller<T> {
             Phase::Settle | Phase::Forward | Phase::Backward | Phase::Turn => {
                 *st |= status::CONTACT;
                 let mut f = 0;
-                // The contact detector's low-pass keeps running: it gives the slow force.
-                self.contact.update(&self.p.contact, d, z);
+                // The contact detector's low-pass keeps running: it gives the slow force. (Its
+                // state is the contact confirmed at the approach, latched until the next move.)
+                self.contact.lowpass(&self.p.contact, d);
                 let w = self.reg.w(&self.p.reg);
                 let phi = self.reg.phi_sve(self.sve.z0);
                 // θ̂₂ ≥ k_min > 0 by projection, so the divisions are safe.
-                let (th, h_hat, depth) = match p.regressor {
+                let (th, h_hat, depth) = match self.p.sve.regressor {
                     SveRegressor::Decoupled => {
                         // The high-passes run on every sample to keep their state continuous.
                         let hp = &mut self.sve.hp;
-                        let wh = hp[0].update(p.highpass, w);
+                        let wh = hp[0].update(self.p.sve.highpass, w);
                         let phi_h = [
-                            hp[1].update(p.highpass, phi[0]),
-                            hp[2].update(p.highpass, phi[1]),
+                            hp[1].update(self.p.sve.highpass, phi[0]),
+                            hp[2].update(self.p.sve.highpass, phi[1]),
                         ];
                         if input_ok {
-                            f = Self::est_flags(self.est2.update(&p.est2, wh, &phi_h));
+                            f = Self::est_flags(self.est2.update(&self.p.sve.est2, wh, &phi_h));
                         }
                         let th = self.est2.theta();
                         let force =
@@ -1094,23 +1126,25 @@ impl<T: SineTable> Controller<T> {
                     }
                     SveRegressor::Paper => {
                         if input_ok {
-                            f = Self::est_flags(self.est3.update(&p.est, w, &phi));
+                            f = Self::est_flags(self.est3.update(&self.p.sve.est, w, &phi));
                         }
                         let th = self.est3.theta();
                         let h = self.sve.z0 + th[2] / th[1];
                         (th, h, h - z)
                     }
                 };
-                let (u_d, sat) = self.depth.update(&p.depth, p.depth_eff - depth);
+                let (u_d, sat) = self
+                    .depth
+                    .update(&self.p.sve.depth, self.p.sve.depth_eff - depth);
                 if sat {
                     f |= status::DEPTH_SATURATED;
                 }
                 *st |= f;
                 self.sve.u_cmd = u_d;
-                if self.sve_sequence(t, [th[0], th[1], h_hat, depth, T::ZERO], f) {
+                if self.sve_sequence(t, [th[0], th[1], h_hat, depth], f) {
                     *st |= status::READOUT;
                 }
-                u_d + self.exc.next(&p.exc)
+                u_d + self.exc.next(&self.p.sve.exc)
             }
             Phase::Retract => {
                 let u = self.sve.u_cmd + self.p.retract_step;
@@ -1120,7 +1154,7 @@ impl<T: SineTable> Controller<T> {
                     self.mode = None;
                 }
                 // Let the excitation ramp out while retracting.
-                u + self.exc.next(&p.exc)
+                u + self.exc.next(&self.p.sve.exc)
             }
             _ => self.sve.u_cmd,
         }
@@ -1129,34 +1163,32 @@ impl<T: SineTable> Controller<T> {
     /// The raster: settle, then forward, backward, turn per line; pixel bins along the way.
     #[inline(always)]
     /// Returns true when the sample went into a pixel.
-    fn sve_sequence(&mut self, t: u32, v: [T; 5], flags: u32) -> bool {
-        let p = self.p.sve;
+    fn sve_sequence(&mut self, t: u32, v: [T; 4], flags: u32) -> bool {
         let mut read = false;
         match self.phase {
-            Phase::Settle if t >= p.settle_samples => self.begin_line(true),
+            Phase::Settle if t >= self.p.sve.settle_samples => self.begin_line(true),
             Phase::Forward | Phase::Backward => {
                 let forward = self.phase == Phase::Forward;
-                let f = T::from_i32(t as i32) * p.inv_half;
+                let f = T::from_i32(t as i32) * self.p.sve.inv_half;
                 let x = if forward {
-                    p.x0 + (p.x1 - p.x0) * f
+                    self.p.sve.x0 + (self.p.sve.x1 - self.p.sve.x0) * f
                 } else {
-                    p.x1 + (p.x0 - p.x1) * f
+                    self.p.sve.x1 + (self.p.sve.x0 - self.p.sve.x1) * f
                 };
-                let y = self.y;
-                self.set_xy(x, y);
+                self.set_x_same_y(x);
                 self.sve.acc.add(v, flags);
                 read = true;
-                self.sve.x_acc += self.x - p.x0;
+                self.sve.x_acc += self.x - self.p.sve.x0;
                 if t >= self.sve.next_boundary {
                     self.finish_pixel(forward);
                     self.sve.pixel += 1;
-                    if self.sve.pixel >= p.pixels {
+                    if self.sve.pixel >= self.p.sve.pixels.get() {
                         if forward {
                             self.begin_line(false);
                         } else {
                             self.sve.line += 1;
                             self.sve.t = 0;
-                            if self.sve.line >= p.lines {
+                            if self.sve.line >= self.p.sve.lines {
                                 self.exc.set_on(false);
                                 self.phase = Phase::Retract;
                             } else {
@@ -1164,19 +1196,20 @@ impl<T: SineTable> Controller<T> {
                             }
                         }
                     } else {
-                        self.sve.next_boundary =
-                            ((self.sve.pixel as u64 + 1) * p.half_samples as u64 / p.pixels as u64)
-                                as u32;
+                        self.sve.next_boundary = ((self.sve.pixel as u64 + 1)
+                            * self.p.sve.half_samples as u64
+                            / NonZeroU64::from(self.p.sve.pixels))
+                            as u32;
                     }
                 }
             }
             Phase::Turn => {
-                let f = T::from_i32(t.min(p.turn_samples) as i32) * p.inv_turn;
-                let y_from = p.y0 + p.dy * T::from_i32(self.sve.line as i32 - 1);
-                let y = y_from + p.dy * f;
+                let f = T::from_i32(t.min(self.p.sve.turn_samples) as i32) * self.p.sve.inv_turn;
+                let y_from = self.p.sve.y0 + self.p.sve.dy * T::from_i32(self.sve.line as i32 - 1);
+                let y = y_from + self.p.sve.dy * f;
                 let x = self.x;
                 self.set_xy(x, y);
-                if t >= p.turn_samples {
+                if t >= self.p.sve.turn_samples {
                     self.begin_line(true);
                 }
             }
@@ -1189,7 +1222,7 @@ impl<T: SineTable> Controller<T> {
         let p = self.p.sve;
         self.sve.t = 0;
         self.sve.pixel = 0;
-        self.sve.next_boundary = (p.half_samples as u64 / p.pixels as u64) as u32;
+        self.sve.next_boundary = (p.half_samples as u64 / NonZeroU64::from(p.pixels)) as u32;
         self.sve.acc.clear();
         self.sve.x_acc = T::ZERO;
         self.phase = if forward {
@@ -1208,7 +1241,7 @@ impl<T: SineTable> Controller<T> {
         let pixel = if forward {
             s.pixel
         } else {
-            p.pixels - 1 - s.pixel
+            p.pixels.get() - 1 - s.pixel
         };
         let rec = PixelRecord {
             line: s.line as u16,

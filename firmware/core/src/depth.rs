@@ -43,6 +43,11 @@ impl<T: Real> DepthController<T> {
     pub fn update(&mut self, p: &DepthParams<T>, depth_error: T) -> (T, bool) {
         // Deeper than wanted (error < 0) → raise the base (U up).
         let u = self.u - p.ki_period * depth_error;
+        if u >= p.u_min && u <= p.u_max {
+            // Inside the limits (false for NaN): what the clamp below would give.
+            self.u = u;
+            return (u, false);
+        }
         let limited = u.clamp_to(p.u_min, p.u_max);
         let saturated = limited != u;
         self.u = limited;

@@ -91,11 +91,22 @@ pub struct UpdateInfo {
 }
 
 /// A recursive estimator of `N` parameters.
+///
+/// P is symmetric: only its upper triangle (`p[i][j]`, `i ≤ j`) is kept up to date;
+/// [`Estimator::covariance`] returns the whole matrix.
 #[derive(Clone, Copy, Debug)]
 pub struct Estimator<T, const N: usize> {
     theta: [T; N],
     p: [[T; N]; N],
     last_error: T,
+}
+
+/// `x` is finite: `x − x` is 0 for every finite x and NaN for ±∞ and NaN (two float
+/// instructions, where the bit test moves the value to an integer register first).
+#[inline(always)]
+#[allow(clippy::eq_op)] // x − x is the point: 0 for finite x, NaN otherwise.
+fn finite<T: Real>(x: T) -> bool {
+    x - x == T::ZERO
 }
 
 impl<T: Real, const N: usize> Estimator<T, N> {
@@ -135,7 +146,23 @@ impl<T: Real, const N: usize> Estimator<T, N> {
 
     /// The covariance P (for tests and telemetry).
     pub fn covariance(&self) -> [[T; N]; N] {
-        self.p
+        let mut p = self.p;
+        for i in 0..N {
+            for j in 0..i {
+                p[i][j] = self.p[j][i];
+            }
+        }
+        p
+    }
+
+    /// P[i][j] from the upper triangle.
+    #[inline(always)]
+    fn pij(&self, i: usize, j: usize) -> T {
+        if i <= j {
+            self.p[i][j]
+        } else {
+            self.p[j][i]
+        }
     }
 
     /// The last prediction error w − θ̂ᵀφ (before the update).
@@ -192,7 +219,7 @@ impl<T: Real, const N: usize> Estimator<T, N> {
                 for i in 0..N {
                     let mut s = T::ZERO;
                     for j in 0..N {
-                        s += self.p[i][j] * phi[j];
+                        s += self.pij(i, j) * phi[j];
                     }
                     g[i] = f * s;
                     phig += phi[i] * g[i];
@@ -200,7 +227,8 @@ impl<T: Real, const N: usize> Estimator<T, N> {
                 let den = m2 * params.inv_period + phig;
                 // den > 0 for a positive definite P; anything else (NaN, overflow, lost
                 // definiteness through rounding) restarts P rather than poison θ.
-                if !(den > T::ZERO) || !den.is_finite() || !e.is_finite() {
+                let inf = T::from_f64(f64::INFINITY);
+                if !(den > T::ZERO && den < inf && finite(e)) {
                     self.reset_covariance(params);
                     info.reset = true;
                     return info;
@@ -210,9 +238,7 @@ impl<T: Real, const N: usize> Estimator<T, N> {
                 for i in 0..N {
                     let gi = g[i] * inv;
                     for j in i..N {
-                        let v = f * self.p[i][j] - gi * g[j];
-                        self.p[i][j] = v;
-                        self.p[j][i] = v;
+                        self.p[i][j] = f * self.p[i][j] - gi * g[j];
                     }
                     definite &= self.p[i][i] > T::ZERO;
                 }
@@ -223,8 +249,16 @@ impl<T: Real, const N: usize> Estimator<T, N> {
                 }
                 let k = e * inv;
                 let mut theta = self.theta;
+                let mut inside = true;
                 for i in 0..N {
                     theta[i] += g[i] * k;
+                    // False for NaN as well.
+                    inside &= theta[i] >= params.theta_min[i] && theta[i] <= params.theta_max[i];
+                }
+                if inside {
+                    // Nothing to project (what follows would leave θ as it is).
+                    self.theta = theta;
+                    return info;
                 }
                 // A parameter beyond its bound is brought back along P's column, the projection
                 // in the P⁻¹ metric: the others move as the least-squares fit with that
@@ -241,7 +275,7 @@ impl<T: Real, const N: usize> Estimator<T, N> {
                     if excess != T::ZERO {
                         let s = excess / self.p[i][i];
                         for j in 0..N {
-                            theta[j] -= self.p[j][i] * s;
+                            theta[j] -= self.pij(j, i) * s;
                         }
                         info.projected = true;
                     }

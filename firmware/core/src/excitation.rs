@@ -191,6 +191,11 @@ impl<T: SineTable> Excitation<T> {
         // The phases run continuously, on or off, so the tones are coherent from tap to tap.
         self.phase1 = self.phase1.wrapping_add(p.tone1.increment);
         self.phase2 = self.phase2.wrapping_add(p.tone2.increment);
+        if self.on && self.envelope == T::ONE {
+            // Fully on: the ramp below would leave the envelope at 1, and 1·s = s.
+            return p.tone1.amplitude * sine::<T>(self.phase1)
+                + p.tone2.amplitude * sine::<T>(self.phase2);
+        }
         let env = if self.on {
             self.envelope + p.ramp_step
         } else {

@@ -163,6 +163,28 @@ impl<T: Real> Prefilter<T> {
         }
     }
 
+    /// [`Self::update`] for [`Hold::Smooth`] coefficients (the Z filter's path, without the
+    /// run-time test of the hold): the new state, and `s²·x/Λ` of the previous sample.
+    #[inline(always)]
+    pub fn update_smooth(&mut self, c: &PrefilterCoeffs<T>, x: T) -> T {
+        let end = self.x1 - c.curvature * ((x - self.x1) - (self.x1 - self.x2));
+        let sample = self.x1;
+        let y = c.phi[0][0] * self.y
+            + c.phi[0][1] * self.dy
+            + c.g_prev[0] * self.held
+            + c.g_new[0] * end;
+        let dy = c.phi[1][0] * self.y
+            + c.phi[1][1] * self.dy
+            + c.g_prev[1] * self.held
+            + c.g_new[1] * end;
+        self.y = y;
+        self.dy = dy;
+        self.held = end;
+        self.x2 = self.x1;
+        self.x1 = x;
+        (sample - y - c.two_lambda * dy) * c.inv_lambda2
+    }
+
     /// Take the new sample `x` of a staircase ([`Hold::Zero`] coefficients) and return `x/Λ` and
     /// `s·x/Λ` only: the U filter's path, which needs neither the previous sample nor the
     /// second derivative.
@@ -272,6 +294,23 @@ mod tests {
                 y == o1.x && dy == o1.dx,
                 "the held path must equal the general one"
             );
+        }
+    }
+
+    #[test]
+    fn smooth_path_equals_the_general_one() {
+        let c = PrefilterCoeffs::<f32>::new(8.0, 1.0, Hold::Smooth);
+        let (mut a, mut b) = (
+            Prefilter::<f32>::at_rest(3.0),
+            Prefilter::<f32>::at_rest(3.0),
+        );
+        for k in 0..5000 {
+            let x = 3.0 + (k as f32 * 0.013).sin() * 40.0 + if k % 9 == 0 { 1.5 } else { 0.0 };
+            let o = a.update(&c, x);
+            let ddx = b.update_smooth(&c, x);
+            assert_eq!(o.ddx.to_bits(), ddx.to_bits());
+            let (y, dy) = b.state();
+            assert_eq!((o.x.to_bits(), o.dx.to_bits()), (y.to_bits(), dy.to_bits()));
         }
     }
 

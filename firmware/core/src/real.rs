@@ -78,12 +78,10 @@ impl Real for f32 {
     }
     #[inline(always)]
     fn round_i32(self) -> i32 {
-        // `as` saturates and maps NaN to 0: no undefined behaviour, no panic.
-        if self >= 0.0 {
-            (self + 0.5) as i32
-        } else {
-            (self - 0.5) as i32
-        }
+        // `as` saturates and maps NaN to 0: no undefined behaviour, no panic. Adding ±0.5 by
+        // the sign (no branch) is `if x >= 0 { x + 0.5 } else { x − 0.5 }` in every case: for
+        // −0.0 both truncate to 0, for NaN both give 0.
+        (self + 0.5f32.copysign(self)) as i32
     }
     #[inline(always)]
     fn is_finite(self) -> bool {
@@ -108,11 +106,8 @@ impl Real for f64 {
     }
     #[inline(always)]
     fn round_i32(self) -> i32 {
-        if self >= 0.0 {
-            (self + 0.5) as i32
-        } else {
-            (self - 0.5) as i32
-        }
+        // As for f32.
+        (self + 0.5f64.copysign(self)) as i32
     }
     #[inline(always)]
     fn is_finite(self) -> bool {

@@ -46,13 +46,13 @@ impl<T: Real> RegressorParams<T> {
     }
 }
 
-/// The two prefilters and their latest outputs.
+/// The two prefilters and their latest outputs (the filters' states are their x/Λ and
+/// s·x/Λ; only s²·Z/Λ is kept besides).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Regressor<T> {
     zf: Prefilter<T>,
     uf: Prefilter<T>,
-    z: Filtered<T>,
-    u: Filtered<T>,
+    z_ddx: T,
     u_prev: T,
 }
 
@@ -62,16 +62,7 @@ impl<T: Real> Regressor<T> {
         Self {
             zf: Prefilter::at_rest(z0),
             uf: Prefilter::at_rest(u0),
-            z: Filtered {
-                x: z0,
-                dx: T::ZERO,
-                ddx: T::ZERO,
-            },
-            u: Filtered {
-                x: u0,
-                dx: T::ZERO,
-                ddx: T::ZERO,
-            },
+            z_ddx: T::ZERO,
             u_prev: u0,
         }
     }
@@ -80,45 +71,52 @@ impl<T: Real> Regressor<T> {
     /// output one step ago), `z = u − D` the tip position sampled now.
     #[inline(always)]
     pub fn update(&mut self, p: &RegressorParams<T>, u: T, z: T) {
-        self.z = self.zf.update(&p.z, z);
-        let (uy, udy) = self.uf.update_held(&p.u, self.u_prev);
-        self.u = Filtered {
-            x: uy,
-            dx: udy,
-            ddx: T::ZERO,
-        };
+        self.z_ddx = self.zf.update_smooth(&p.z, z);
+        self.uf.update_held(&p.u, self.u_prev);
         self.u_prev = u;
     }
 
     /// Z/Λ, s·Z/Λ and s²·Z/Λ.
     #[inline(always)]
     pub fn z(&self) -> Filtered<T> {
-        self.z
+        let (x, dx) = self.zf.state();
+        Filtered {
+            x,
+            dx,
+            ddx: self.z_ddx,
+        }
     }
 
     /// U/Λ and s·U/Λ (the U filter does not form s²·U/Λ: nothing needs it; `ddx` is 0).
     #[inline(always)]
     pub fn u(&self) -> Filtered<T> {
-        self.u
+        let (x, dx) = self.uf.state();
+        Filtered {
+            x,
+            dx,
+            ddx: T::ZERO,
+        }
     }
 
     /// w = (M s² + C s + K)·Z/Λ − (C s + K)·U/Λ.
     #[inline(always)]
     pub fn w(&self, p: &RegressorParams<T>) -> T {
-        let z = &self.z;
-        let u = &self.u;
+        let z = self.z();
+        let u = self.u();
         p.mass * z.ddx + p.damping * (z.dx - u.dx) + p.stiffness * (z.x - u.x)
     }
 
     /// DIVE (13): [s·δ/Λ, δ/Λ] with δ = h − Z.
     #[inline(always)]
     pub fn phi_dive(&self, h: T) -> [T; 2] {
-        [-self.z.dx, h - self.z.x]
+        let z = self.z();
+        [-z.dx, h - z.x]
     }
 
     /// SVE (16) with a fixed reference z₀: [−s·Z/Λ, z₀ − Z/Λ, 1].
     #[inline(always)]
     pub fn phi_sve(&self, z0: T) -> [T; 3] {
-        [-self.z.dx, z0 - self.z.x, T::ONE]
+        let z = self.z();
+        [-z.dx, z0 - z.x, T::ONE]
     }
 }

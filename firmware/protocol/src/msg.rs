@@ -9,7 +9,7 @@
 use crate::wire::{Reader, Short, Writer};
 
 /// Bumped whenever a layout below changes.
-pub const PROTOCOL_VERSION: u16 = 1;
+pub const PROTOCOL_VERSION: u16 = 2;
 
 /// The most samples one [`Command::Feed`] block carries (f32 samples: 4 bytes each).
 pub const MAX_FEED: usize = 48;
@@ -69,6 +69,9 @@ pub enum Source {
     },
     /// Replay: one loop step per sample fed by [`Command::Feed`] (QEMU board only).
     Feed,
+    /// [`Command::Feed`] blocks (codes) fill the QEMU board's bench table instead of stepping
+    /// the loop; a [`BenchMode::Continue`] bench then reads the table through the ADC path.
+    Table,
 }
 
 /// How the loop's per-sample outputs are reported.
@@ -159,9 +162,8 @@ pub enum Command {
     RequestStatus,
     /// Measures the loop interrupt (QEMU board: instructions via SysTick under `-icount`).
     Bench {
-        /// Mode to run the loop in while measuring; `None`: the core stopped (its outputs
-        /// hold), which measures what the interrupt costs around `step`.
-        mode: Option<Mode>,
+        /// What the core does while measured.
+        mode: BenchMode,
         /// Number of loop interrupts to measure (≥ 10 000 for the report).
         steps: u32,
         /// Loop timer period in board ticks during the measurement.
@@ -179,16 +181,50 @@ pub enum Command {
     },
 }
 
+/// What the core does during a [`Command::Bench`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BenchMode {
+    /// Stopped (outputs hold): the interrupt around an idle `step`, synthetic ADC input.
+    Stopped,
+    /// Started in a mode at the beginning of the window, synthetic ADC input.
+    Start(Mode),
+    /// Carries on from where a replay left it, reading the bench table ([`Source::Table`])
+    /// as the ADC input: the estimating phases of a real recording. With `time_step`, first
+    /// measures `step` alone on a copy of the core over the same input (thread mode,
+    /// interrupts masked).
+    Continue {
+        /// Also time `step` alone.
+        time_step: bool,
+    },
+}
+
+impl BenchMode {
+    fn to_u8(self) -> u8 {
+        match self {
+            BenchMode::Stopped => 0,
+            BenchMode::Start(m) => m.to_u8(),
+            BenchMode::Continue { time_step: true } => 3,
+            BenchMode::Continue { time_step: false } => 4,
+        }
+    }
+    fn from_u8(v: u8) -> Result<Self, DecodeError> {
+        match v {
+            0 => Ok(BenchMode::Stopped),
+            3 => Ok(BenchMode::Continue { time_step: true }),
+            4 => Ok(BenchMode::Continue { time_step: false }),
+            m => Ok(BenchMode::Start(Mode::from_u8(m)?)),
+        }
+    }
+}
+
 /// Parameter ids of [`Command::SetParam`]. The board's own conversion factors live here;
 /// the core's configuration fields get ids from 100 on, assigned where the core's `Config`
 /// is mapped (`firmware/src/core_glue.rs`).
 pub mod param {
-    /// ADC: metres of deflection per code.
+    /// ADC: metres of deflection per code (default: the core's `limits.d_full_scale_m` /
+    /// 32768, a 16-bit converter spanning the core's full scale). The DACs of U, X and Y
+    /// are the core's own grids (`limits.*`), so they have no board parameter.
     pub const ADC_METRES_PER_CODE: u16 = 1;
-    /// DAC (U): metres per code (used by the stand-in core to quantise U).
-    pub const DAC_METRES_PER_CODE: u16 = 2;
-    /// Lateral DACs (X, Y): metres per code.
-    pub const LATERAL_METRES_PER_CODE: u16 = 3;
     /// First id of the core's configuration fields.
     pub const CORE_BASE: u16 = 100;
 }
@@ -232,8 +268,8 @@ pub struct StepFrame {
     pub x_m: f32,
     /// Lateral setpoints in metres.
     pub y_m: f32,
-    /// The core's status flags.
-    pub status: u16,
+    /// The core's status word (flags and, from bit 24, the phase code).
+    pub status: u32,
     /// Current aggregate estimates (c, k, h) in SI, as f32.
     pub estimates: [f32; 3],
 }
@@ -249,7 +285,7 @@ impl StepFrame {
         w.f32(self.u_m)?;
         w.f32(self.x_m)?;
         w.f32(self.y_m)?;
-        w.u16(self.status)?;
+        w.u32(self.status)?;
         est(w, &self.estimates)
     }
     fn decode_fields(r: &mut Reader<'_>) -> Result<Self, Short> {
@@ -261,14 +297,14 @@ impl StepFrame {
             u_m: r.f32()?,
             x_m: r.f32()?,
             y_m: r.f32()?,
-            status: r.u16()?,
+            status: r.u32()?,
             estimates: read_est(r)?,
         })
     }
 }
 
 /// Bytes of one Step frame's fields.
-pub const STEP_FIELDS_LEN: usize = 40;
+pub const STEP_FIELDS_LEN: usize = 42;
 
 /// Incremental CRC-32 over the encoded fields of consecutive Step frames: the digest of a
 /// [`StepBlockFrame`]. Equal digests mean bit-identical samples (up to a 2⁻³² chance).
@@ -312,7 +348,8 @@ pub struct StepBlockFrame {
     pub len: u8,
     /// DAC codes (saturated to i16; the digest has the full value).
     pub u_codes: [i16; MAX_FEED],
-    /// Status flags.
+    /// The low 16 bits of each status word (the flags; the phase code above them is
+    /// covered by the digest).
     pub status: [u16; MAX_FEED],
     /// [`step_digest`] of the block's full Step frames.
     pub digest: u32,
@@ -339,27 +376,48 @@ impl StepBlockFrame {
             && frames.iter().enumerate().all(|(i, f)| {
                 f.index == self.first_index.wrapping_add(i as u32)
                     && self.u_codes.get(i) == Some(&(f.u_code.clamp(-32768, 32767) as i16))
-                    && self.status.get(i) == Some(&f.status)
+                    && self.status.get(i) == Some(&(f.status as u16))
             })
             && step_digest(frames) == self.digest
     }
 }
 
-/// One finished DIVE tap or SVE pixel.
+/// One finished DIVE tap or SVE pixel: every field of the core's `TapRecord` /
+/// `PixelRecord` (f32 values in SI, as the core computed them).
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct RecordFrame {
-    /// Loop sample index at which the record was finished.
+    /// Loop sample index at which the record was taken.
     pub index: u32,
     /// 1 = DIVE tap, 2 = SVE pixel.
     pub mode: u8,
-    /// Estimates (c, k, h) in SI.
-    pub estimates: [f32; 3],
-    /// Lateral position in metres.
+    /// Tap: the tap's number in the sequence. Pixel: the line number.
+    pub number: u32,
+    /// Tap: grid column. Pixel: pixel along the line (0 at x0).
+    pub ix: u16,
+    /// Tap: grid row. Pixel: the line number again (the image row).
+    pub iy: u16,
+    /// Tap: the regressor (0 paper, 1 offset). Pixel: 1 forward, 0 backward.
+    pub variant: u8,
+    /// Lateral position (m).
     pub x_m: f32,
-    /// Lateral position in metres.
+    /// Lateral position (m).
     pub y_m: f32,
-    /// The core's status flags at the end of the record.
-    pub status: u16,
+    /// Aggregate damping ĉ (N·s/m).
+    pub c_ns_per_m: f32,
+    /// Aggregate spring constant k̂ (N/m).
+    pub k_n_per_m: f32,
+    /// Tap: the contact height Z(t₁). Pixel: the bed height ĥ (m).
+    pub height_m: f32,
+    /// Mean depth (m).
+    pub depth_m: f32,
+    /// Tap: θ̂₃ of the offset regressor (N); pixel: 0.
+    pub offset_n: f32,
+    /// Tap: the offset regressor's centre z₀ (m); pixel: 0.
+    pub centre_m: f32,
+    /// Status bits gathered over the tap or pixel.
+    pub flags: u32,
+    /// Samples averaged.
+    pub samples: u32,
 }
 
 /// Firmware counters: everything that was lost or refused is counted here, never dropped
@@ -398,6 +456,11 @@ pub struct BenchFrame {
     pub idle_insns_per_iteration: u8,
     /// Instructions in the window outside the interrupts and the idle loop (fixed).
     pub fixed_insns: u8,
+    /// [`BenchMode::Continue`] with `time_step`: SysTick ticks of `steps` calls of `step` alone, on a copy of
+    /// the core over the same input, in thread mode with interrupts masked (0 otherwise).
+    pub step_ticks: u32,
+    /// The same loop without the `step` call (its own cost, to subtract).
+    pub loop_ticks: u32,
 }
 
 /// The result of [`Command::Calibrate`].
@@ -442,6 +505,81 @@ pub enum Telemetry {
     Bench(BenchFrame),
     /// SysTick calibration.
     Calibration(CalibrationFrame),
+    /// `ApplyConfig` refused: the configuration field at fault, its value and why (sent
+    /// before the refusing Ack).
+    ConfigRejected(ConfigRejectedFrame),
+}
+
+/// Longest field name in a [`ConfigRejectedFrame`].
+pub const FIELD_LEN: usize = 48;
+/// Longest reason in a [`ConfigRejectedFrame`] (longer ones are cut).
+pub const REASON_LEN: usize = 160;
+
+/// Why the core refused its configuration (the core's `ConfigError`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ConfigRejectedFrame {
+    /// The field's dotted path (UTF-8, `field_len` bytes), e.g. `dive.estimator.alpha`.
+    pub field: [u8; FIELD_LEN],
+    /// Bytes of `field` used.
+    pub field_len: u8,
+    /// The value.
+    pub value: f64,
+    /// What is wrong (UTF-8, `reason_len` bytes, cut at a character boundary).
+    pub reason: [u8; REASON_LEN],
+    /// Bytes of `reason` used.
+    pub reason_len: u8,
+}
+
+impl Default for ConfigRejectedFrame {
+    fn default() -> Self {
+        Self {
+            field: [0; FIELD_LEN],
+            field_len: 0,
+            value: 0.0,
+            reason: [0; REASON_LEN],
+            reason_len: 0,
+        }
+    }
+}
+
+/// The longest prefix of `s` of at most `max` bytes that ends on a character boundary.
+fn cut(s: &str, max: usize) -> &[u8] {
+    let mut n = s.len().min(max);
+    while n > 0 && !s.is_char_boundary(n) {
+        n -= 1;
+    }
+    s.as_bytes().get(..n).unwrap_or(&[])
+}
+
+impl ConfigRejectedFrame {
+    /// From the field name, value and reason (cut to fit).
+    pub fn new(field: &str, value: f64, reason: &str) -> Self {
+        let mut f = Self {
+            value,
+            ..Self::default()
+        };
+        let a = cut(field, FIELD_LEN);
+        if let Some(dst) = f.field.get_mut(..a.len()) {
+            dst.copy_from_slice(a);
+            f.field_len = a.len() as u8;
+        }
+        let b = cut(reason, REASON_LEN);
+        if let Some(dst) = f.reason.get_mut(..b.len()) {
+            dst.copy_from_slice(b);
+            f.reason_len = b.len() as u8;
+        }
+        f
+    }
+    /// The field name.
+    pub fn field(&self) -> &str {
+        let b = self.field.get(..self.field_len as usize).unwrap_or(&[]);
+        core::str::from_utf8(b).unwrap_or("?")
+    }
+    /// The reason.
+    pub fn reason(&self) -> &str {
+        let b = self.reason.get(..self.reason_len as usize).unwrap_or(&[]);
+        core::str::from_utf8(b).unwrap_or("?")
+    }
 }
 
 mod kind {
@@ -467,6 +605,7 @@ mod kind {
     pub const BENCH_RESULT: u8 = 0x86;
     pub const CALIBRATION: u8 = 0x87;
     pub const STEP_BLOCK: u8 = 0x88;
+    pub const CONFIG_REJECTED: u8 = 0x89;
 }
 
 fn est(w: &mut Writer<'_>, e: &[f32; 3]) -> Result<(), Short> {
@@ -518,6 +657,10 @@ impl Command {
                         w.u8(2)?;
                         w.u32(0)
                     }
+                    Source::Table => {
+                        w.u8(3)?;
+                        w.u32(0)
+                    }
                 }
             }
             Command::Feed(block) => {
@@ -557,7 +700,7 @@ impl Command {
                 period_ticks,
             } => {
                 w.u8(kind::BENCH)?;
-                w.u8(mode.map_or(0, Mode::to_u8))?;
+                w.u8(mode.to_u8())?;
                 w.u32(steps)?;
                 w.u32(period_ticks)
             }
@@ -591,6 +734,7 @@ impl Command {
                 match tag {
                     1 => Command::SetSource(Source::Timer { period_ticks }),
                     2 => Command::SetSource(Source::Feed),
+                    3 => Command::SetSource(Source::Table),
                     _ => return Err(DecodeError::BadValue),
                 }
             }
@@ -628,10 +772,7 @@ impl Command {
             }
             kind::REQUEST_STATUS => Command::RequestStatus,
             kind::BENCH => Command::Bench {
-                mode: match r.u8()? {
-                    0 => None,
-                    m => Some(Mode::from_u8(m)?),
-                },
+                mode: BenchMode::from_u8(r.u8()?)?,
                 steps: r.u32()?,
                 period_ticks: r.u32()?,
             },
@@ -683,10 +824,24 @@ impl Telemetry {
                 w.u8(kind::RECORD)?;
                 w.u32(rf.index)?;
                 w.u8(rf.mode)?;
-                est(w, &rf.estimates)?;
-                w.f32(rf.x_m)?;
-                w.f32(rf.y_m)?;
-                w.u16(rf.status)
+                w.u32(rf.number)?;
+                w.u16(rf.ix)?;
+                w.u16(rf.iy)?;
+                w.u8(rf.variant)?;
+                for v in [
+                    rf.x_m,
+                    rf.y_m,
+                    rf.c_ns_per_m,
+                    rf.k_n_per_m,
+                    rf.height_m,
+                    rf.depth_m,
+                    rf.offset_n,
+                    rf.centre_m,
+                ] {
+                    w.f32(v)?;
+                }
+                w.u32(rf.flags)?;
+                w.u32(rf.samples)
             }
             Telemetry::Status(s) => {
                 w.u8(kind::STATUS)?;
@@ -705,13 +860,25 @@ impl Telemetry {
                 w.u32(b.ticks)?;
                 w.u32(b.idle_iterations)?;
                 w.u8(b.idle_insns_per_iteration)?;
-                w.u8(b.fixed_insns)
+                w.u8(b.fixed_insns)?;
+                w.u32(b.step_ticks)?;
+                w.u32(b.loop_ticks)
             }
             Telemetry::Calibration(c) => {
                 w.u8(kind::CALIBRATION)?;
                 w.u32(c.iterations)?;
                 w.u32(c.instructions)?;
                 w.u32(c.ticks)
+            }
+            Telemetry::ConfigRejected(c) => {
+                w.u8(kind::CONFIG_REJECTED)?;
+                w.f64(c.value)?;
+                let f = c.field.get(..c.field_len as usize).unwrap_or(&[]);
+                w.u8(f.len() as u8)?;
+                w.bytes(f)?;
+                let m = c.reason.get(..c.reason_len as usize).unwrap_or(&[]);
+                w.u8(m.len() as u8)?;
+                w.bytes(m)
             }
         }
     }
@@ -754,10 +921,20 @@ impl Telemetry {
             kind::RECORD => Telemetry::Record(RecordFrame {
                 index: r.u32()?,
                 mode: r.u8()?,
-                estimates: read_est(&mut r)?,
+                number: r.u32()?,
+                ix: r.u16()?,
+                iy: r.u16()?,
+                variant: r.u8()?,
                 x_m: r.f32()?,
                 y_m: r.f32()?,
-                status: r.u16()?,
+                c_ns_per_m: r.f32()?,
+                k_n_per_m: r.f32()?,
+                height_m: r.f32()?,
+                depth_m: r.f32()?,
+                offset_n: r.f32()?,
+                centre_m: r.f32()?,
+                flags: r.u32()?,
+                samples: r.u32()?,
             }),
             kind::STATUS => Telemetry::Status(StatusFrame {
                 samples: r.u32()?,
@@ -775,12 +952,37 @@ impl Telemetry {
                 idle_iterations: r.u32()?,
                 idle_insns_per_iteration: r.u8()?,
                 fixed_insns: r.u8()?,
+                step_ticks: r.u32()?,
+                loop_ticks: r.u32()?,
             }),
             kind::CALIBRATION => Telemetry::Calibration(CalibrationFrame {
                 iterations: r.u32()?,
                 instructions: r.u32()?,
                 ticks: r.u32()?,
             }),
+            kind::CONFIG_REJECTED => {
+                let mut c = ConfigRejectedFrame {
+                    value: r.f64()?,
+                    ..Default::default()
+                };
+                let n = r.u8()? as usize;
+                if n > FIELD_LEN {
+                    return Err(DecodeError::BadValue);
+                }
+                for b in c.field.iter_mut().take(n) {
+                    *b = r.u8()?;
+                }
+                c.field_len = n as u8;
+                let n = r.u8()? as usize;
+                if n > REASON_LEN {
+                    return Err(DecodeError::BadValue);
+                }
+                for b in c.reason.iter_mut().take(n) {
+                    *b = r.u8()?;
+                }
+                c.reason_len = n as u8;
+                Telemetry::ConfigRejected(c)
+            }
             other => return Err(DecodeError::UnknownKind(other)),
         };
         finish(&r, t)

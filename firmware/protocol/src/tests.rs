@@ -53,15 +53,26 @@ fn all_commands() -> Vec<Command> {
             status_every: 0,
         },
         Command::RequestStatus,
+        Command::SetSource(Source::Table),
         Command::Bench {
-            mode: None,
+            mode: BenchMode::Stopped,
             steps: 1,
             period_ticks: 2,
         },
         Command::Bench {
-            mode: Some(Mode::Sve),
+            mode: BenchMode::Start(Mode::Sve),
             steps: 10_000,
             period_ticks: 50,
+        },
+        Command::Bench {
+            mode: BenchMode::Continue { time_step: true },
+            steps: 12_000,
+            period_ticks: 100,
+        },
+        Command::Bench {
+            mode: BenchMode::Continue { time_step: false },
+            steps: 12_000,
+            period_ticks: 100,
         },
         Command::Calibrate { iterations: 12345 },
         Command::Exit { code: 3 },
@@ -87,7 +98,7 @@ fn all_telemetry() -> Vec<Telemetry> {
             u_m: -3.0e-6,
             x_m: 1e-6,
             y_m: -1e-6,
-            status: 0xA5A5,
+            status: 0x0A00_A5A5,
             estimates: [1.0, 2.0, f32::INFINITY],
         }),
         Telemetry::StepBlock({
@@ -106,10 +117,20 @@ fn all_telemetry() -> Vec<Telemetry> {
         Telemetry::Record(RecordFrame {
             index: 77,
             mode: 2,
-            estimates: [1e-6, 0.05, 3e-7],
+            number: 3,
+            ix: 49,
+            iy: 3,
+            variant: 1,
             x_m: 0.0,
             y_m: 5e-6,
-            status: 3,
+            c_ns_per_m: 1e-5,
+            k_n_per_m: 0.05,
+            height_m: 3e-7,
+            depth_m: 1.2e-7,
+            offset_n: -0.0,
+            centre_m: f32::NAN,
+            flags: 0x4004,
+            samples: 980,
         }),
         Telemetry::Status(StatusFrame {
             samples: 1,
@@ -127,7 +148,19 @@ fn all_telemetry() -> Vec<Telemetry> {
             idle_iterations: 99,
             idle_insns_per_iteration: 4,
             fixed_insns: 3,
+            step_ticks: 7,
+            loop_ticks: 8,
         }),
+        Telemetry::ConfigRejected(ConfigRejectedFrame::new(
+            "sve.estimator.gamma",
+            1e9,
+            "the gradient law needs T·γ/α ≤ 1 to be stable for every input; lower γ or raise α",
+        )),
+        Telemetry::ConfigRejected(ConfigRejectedFrame::new(
+            &"x".repeat(100),
+            f64::NAN,
+            &"é".repeat(200),
+        )),
         Telemetry::Calibration(CalibrationFrame {
             iterations: 1,
             instructions: 2,
@@ -333,7 +366,7 @@ fn step_fields_length_and_block_matching() {
     };
     for (i, f) in frames.iter().enumerate() {
         b.u_codes[i] = f.u_code as i16;
-        b.status[i] = f.status;
+        b.status[i] = f.status as u16;
     }
     assert!(b.matches(&frames));
     // One bit anywhere in any field breaks the match.
@@ -344,4 +377,18 @@ fn step_fields_length_and_block_matching() {
     other[3].y_m = f32::from_bits(other[3].y_m.to_bits() ^ 1);
     assert!(!b.matches(&other));
     assert!(!b.matches(&frames[..9]));
+}
+
+#[test]
+fn config_rejected_is_cut_at_character_boundaries() {
+    let c = ConfigRejectedFrame::new("dive.estimator.alpha", -1.0, "must be a finite number > 0");
+    assert_eq!(c.field(), "dive.estimator.alpha");
+    assert_eq!(c.reason(), "must be a finite number > 0");
+    let long = ConfigRejectedFrame::new("f", 0.0, &"é".repeat(200));
+    assert_eq!(long.reason().len(), REASON_LEN);
+    assert!(long.reason().chars().all(|ch| ch == 'é'));
+    let mut buf = [0u8; MAX_WIRE];
+    let n = frame::encode(1, &Telemetry::ConfigRejected(long), &mut buf).unwrap();
+    let (_, back): (u32, Telemetry) = frame::decode_frame(&buf[..n - 1]).unwrap();
+    assert_eq!(back, Telemetry::ConfigRejected(long));
 }

@@ -29,7 +29,7 @@ use visco_firmware::scale::Scale;
 use visco_firmware::spi_device::CsDevice;
 use visco_firmware::spsc::{Consumer, Producer, Spsc};
 use visco_protocol::{
-    ack, board, BenchFrame, CalibrationFrame, FeedBlock, FeedSamples, Source, MAX_FEED,
+    ack, board, BenchFrame, BenchMode, CalibrationFrame, FeedBlock, FeedSamples, Source, MAX_FEED,
 };
 
 #[path = "semihosting_log.rs"]
@@ -239,7 +239,12 @@ static FEED: Spsc<FeedSample, FEED_DEPTH> = Spsc::new();
 enum AdcSource {
     Synthetic,
     Feed,
+    /// The bench table, one code per sample, then starved.
+    Table,
 }
+
+/// Codes of the bench table (a realistic input for [`BenchMode::Continue`]): 32 KiB.
+pub const TABLE_LEN: usize = 16384;
 
 pub struct QemuAdc {
     dev: Ad4000<AdcDev, part::Ad4000>,
@@ -247,6 +252,11 @@ pub struct QemuAdc {
     source: AdcSource,
     phase: u32,
     feed: Consumer<'static, FeedSample, FEED_DEPTH>,
+    table: &'static mut [i16; TABLE_LEN],
+    /// Codes loaded into the table.
+    table_len: usize,
+    /// Next code read from the table.
+    table_pos: usize,
 }
 
 impl loop_body::Adc for QemuAdc {
@@ -262,6 +272,15 @@ impl loop_body::Adc for QemuAdc {
                 FeedSample::Code(c) => c as i32,
                 FeedSample::Metres(m) => return Some(m),
             },
+            AdcSource::Table => {
+                let i = self.table_pos;
+                if i >= self.table_len {
+                    return None;
+                }
+                self.table_pos = i + 1;
+                // table_len ≤ TABLE_LEN: the mask changes nothing and needs no bounds test.
+                self.table[i & (TABLE_LEN - 1)] as i32
+            }
         };
         // The "conversion" lands in the ADC's output register, then the driver reads it over
         // SPI exactly as on the board.
@@ -290,12 +309,11 @@ impl loop_body::UOutput for QemuU {
 pub struct QemuXy {
     x: Ad5541<DacDev>,
     y: Ad5541<DacDev>,
-    scale: Scale,
 }
 impl loop_body::XyOutput for QemuXy {
-    fn write(&mut self, x_m: f32, y_m: f32) {
-        let (Ok(_) | Err(_)) = self.x.write_code(self.scale.to_code(x_m));
-        let (Ok(_) | Err(_)) = self.y.write_code(self.scale.to_code(y_m));
+    fn write(&mut self, x_code: i32, y_code: i32) {
+        let (Ok(_) | Err(_)) = self.x.write_code(x_code);
+        let (Ok(_) | Err(_)) = self.y.write_code(y_code);
     }
 }
 
@@ -348,6 +366,7 @@ pub struct Board {
     feed_tx: Producer<'static, FeedSample, FEED_DEPTH>,
     feed_rx: Option<Consumer<'static, FeedSample, FEED_DEPTH>>,
     feeding: bool,
+    loading_table: bool,
     next_feed_index: u32,
 }
 
@@ -383,6 +402,7 @@ pub fn init() -> Board {
         feed_tx,
         feed_rx: Some(feed_rx),
         feeding: false,
+        loading_table: false,
         next_feed_index: 0,
     }
 }
@@ -394,18 +414,19 @@ fn device<B: SpiBus<u8>>(bus: B) -> CsDevice<B, VirtualPin, NoWait> {
     }
 }
 
-#[allow(clippy::too_many_arguments)]
 pub fn make_loop(
     b: &mut Board,
     adc_scale: Scale,
-    lateral: Scale,
-    core: Option<ActiveCore>,
+    core: ActiveCore,
     tel: Producer<'static, Item, TELEMETRY_DEPTH>,
     cmds: &'static CommandSlot,
     counters: &'static Counters,
 ) -> Loop {
     let Some(feed) = b.feed_rx.take() else {
         fatal(8)
+    };
+    let Some(table) = cortex_m::singleton!(: [i16; TABLE_LEN] = [0; TABLE_LEN]) else {
+        fatal(10)
     };
     let mut adc = Ad4000::new(device(VirtualAdcBus { conversion: 0 }), CFG_TURBO);
     let (Ok(()) | Err(_)) = adc.configure();
@@ -417,6 +438,9 @@ pub fn make_loop(
             source: AdcSource::Synthetic,
             phase: 0,
             feed,
+            table,
+            table_len: 0,
+            table_pos: 0,
         },
         QemuU {
             dac: Ad5541::new(device(VirtualDacBus)),
@@ -424,7 +448,6 @@ pub fn make_loop(
         QemuXy {
             x: Ad5541::new(device(VirtualDacBus)),
             y: Ad5541::new(device(VirtualDacBus)),
-            scale: lateral,
         },
         core,
         tel,
@@ -440,9 +463,8 @@ pub fn take_link(b: &mut Board) -> Uart {
     }
 }
 
-pub fn set_scales(l: &mut Loop, adc: Scale, lateral: Scale) {
+pub fn set_scales(l: &mut Loop, adc: Scale) {
     l.adc.scale = adc;
-    l.xy_out.scale = lateral;
 }
 
 pub fn mask_loop() {
@@ -517,11 +539,21 @@ pub fn can_accept_command(b: &Board) -> bool {
 pub fn set_source(b: &mut Board, src: Source) -> u8 {
     timer_stop();
     match src {
+        Source::Table => {
+            b.feeding = false;
+            b.loading_table = true;
+            b.next_feed_index = 0;
+            app::with_loop(|l| {
+                l.adc.table_len = 0;
+                l.adc.table_pos = 0;
+            });
+        }
         Source::Timer { period_ticks } => {
             b.feeding = false;
+            b.loading_table = false;
             app::with_loop(|l| {
                 l.adc.source = AdcSource::Synthetic;
-                l.index = 0;
+                l.reset_index();
             });
             if period_ticks != 0 {
                 timer_start(period_ticks);
@@ -529,12 +561,13 @@ pub fn set_source(b: &mut Board, src: Source) -> u8 {
         }
         Source::Feed => {
             b.feeding = true;
+            b.loading_table = false;
             b.next_feed_index = 0;
             app::with_loop(|l| {
                 // Samples of an earlier replay still queued are discarded.
                 while l.adc.feed.pop().is_some() {}
                 l.adc.source = AdcSource::Feed;
-                l.index = 0;
+                l.reset_index();
             });
         }
     }
@@ -542,11 +575,14 @@ pub fn set_source(b: &mut Board, src: Source) -> u8 {
 }
 
 pub fn feed(b: &mut Board, block: &FeedBlock) -> u8 {
-    if !b.feeding {
+    if !b.feeding && !b.loading_table {
         return ack::BUSY;
     }
     if block.first_index != b.next_feed_index {
         return ack::FEED_GAP;
+    }
+    if b.loading_table {
+        return load_table(b, block);
     }
     let n = (block.len as usize).min(MAX_FEED);
     let mut pushed = 0u32;
@@ -575,6 +611,31 @@ pub fn feed(b: &mut Board, block: &FeedBlock) -> u8 {
     }
 }
 
+/// Appends a block of codes to the bench table.
+fn load_table(b: &mut Board, block: &FeedBlock) -> u8 {
+    let FeedSamples::Codes(codes) = &block.samples else {
+        return ack::INVALID; // the table holds ADC codes
+    };
+    let n = (block.len as usize).min(MAX_FEED);
+    let first = block.first_index as usize;
+    let stored = app::with_loop(|l| {
+        let Some(dst) = l.adc.table.get_mut(first..first.saturating_add(n)) else {
+            return false;
+        };
+        for (d, s) in dst.iter_mut().zip(codes.iter()) {
+            *d = *s;
+        }
+        l.adc.table_len = first + n;
+        true
+    });
+    if stored == Some(true) {
+        b.next_feed_index = b.next_feed_index.wrapping_add(n as u32);
+        ack::OK
+    } else {
+        ack::INVALID // beyond TABLE_LEN
+    }
+}
+
 fn timer1_now() -> u32 {
     // SAFETY: TIMER1 value register.
     unsafe { read_volatile(reg(TIMER1_BASE, TIMER_VALUE)) }
@@ -591,30 +652,45 @@ fn timer1_now() -> u32 {
 /// Window: from the first SysTick read to the second, thread mode executes `movs` (1), the
 /// idle loop (4 instructions per iteration: `ldr`, `adds`, `cmp`, `bmi`) and the second `ldr`
 /// (1); everything else is the loop interrupts.
-pub fn bench(
-    b: &mut Board,
-    mode: Option<Mode>,
-    steps: u32,
-    period_ticks: u32,
-) -> Option<BenchFrame> {
+///
+/// [`BenchMode::Continue`] keeps the core where a replay left it and reads the bench table
+/// as the ADC input (the estimating phases of a recording); before the interrupts run, the
+/// same `steps` calls of `step` alone are timed on a copy of the core in thread mode, and
+/// the same loop without the call, so the host can split the interrupt into `step` and the
+/// rest.
+pub fn bench(b: &mut Board, mode: BenchMode, steps: u32, period_ticks: u32) -> Option<BenchFrame> {
     if steps == 0 || period_ticks < 2 {
         return None;
     }
     timer_stop();
     b.feeding = false;
+    b.loading_table = false;
+    let (mut step_ticks, mut loop_ticks) = (0, 0);
     let configured = app::with_loop(|l| {
-        l.adc.source = AdcSource::Synthetic;
         l.per_sample = false;
-        match l.core.as_mut() {
-            Some(c) => {
-                c.command(match mode {
-                    Some(m) => CoreCommand::Start(m),
-                    None => CoreCommand::Stop,
-                });
-                true
+        let c = &mut l.core;
+        match mode {
+            BenchMode::Stopped => {
+                l.adc.source = AdcSource::Synthetic;
+                LoopCore::apply_command(c, CoreCommand::Stop);
             }
-            None => false,
+            BenchMode::Start(m) => {
+                l.adc.source = AdcSource::Synthetic;
+                LoopCore::apply_command(c, CoreCommand::Start(m));
+            }
+            BenchMode::Continue { time_step } => {
+                if steps as usize > l.adc.table_len {
+                    return false;
+                }
+                l.adc.source = AdcSource::Table;
+                l.adc.table_pos = 0;
+                if time_step {
+                    let table = l.adc.table.get(..steps as usize).unwrap_or(&[]);
+                    (step_ticks, loop_ticks) = time_step_alone(c, table, l.adc.scale);
+                }
+            }
         }
+        true
     });
     if configured != Some(true) {
         return None;
@@ -652,8 +728,11 @@ pub fn bench(
     timer_stop();
     let w1 = timer1_now();
     app::with_loop(|l| {
-        if let Some(c) = l.core.as_mut() {
-            c.command(CoreCommand::Stop);
+        if matches!(mode, BenchMode::Continue { .. }) {
+            // The core stays where the recording took it; the host may continue the replay.
+            l.adc.source = AdcSource::Synthetic;
+        } else {
+            l.core.apply_command(CoreCommand::Stop);
         }
     });
     let ticks = t0.wrapping_sub(t1) & 0x00FF_FFFF;
@@ -661,15 +740,49 @@ pub fn bench(
     let wrapped = w0.wrapping_sub(w1) >= 0x00FF_0000;
     Some(BenchFrame {
         mode: match mode {
-            None => 0,
-            Some(Mode::Dive) => 1,
-            Some(Mode::Sve) => 2,
+            BenchMode::Stopped => 0,
+            BenchMode::Start(Mode::Dive) => 1,
+            BenchMode::Start(Mode::Sve) => 2,
+            BenchMode::Continue { .. } => 3,
         },
         steps,
         ticks: if wrapped { 0 } else { ticks },
         idle_iterations: idle,
         idle_insns_per_iteration: 4,
         fixed_insns: 2,
+        step_ticks,
+        loop_ticks,
+    })
+}
+
+fn systick_now() -> u32 {
+    // SAFETY: SysTick current value register.
+    unsafe { read_volatile(SYST_CVR as *const u32) }
+}
+
+/// SysTick ticks of `step` over `table` on a copy of `core` (the interrupt's ADC conversion
+/// in front of each call), and of the same loop without the call; interrupts masked.
+fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32) {
+    let mut copy = core.clone();
+    cortex_m::interrupt::free(|_| {
+        let t0 = systick_now();
+        for &c in table {
+            let d = scale.to_metres(c as i32);
+            // Through an opaque reference, as the interrupt sees its core: no state or
+            // parameter is kept in registers from one call to the next.
+            let core = core::hint::black_box(&mut copy);
+            core::hint::black_box(core.step(core::hint::black_box(d)));
+        }
+        let t1 = systick_now();
+        for &c in table {
+            let d = scale.to_metres(c as i32);
+            core::hint::black_box(core::hint::black_box(d));
+        }
+        let t2 = systick_now();
+        (
+            t0.wrapping_sub(t1) & 0x00FF_FFFF,
+            t1.wrapping_sub(t2) & 0x00FF_FFFF,
+        )
     })
 }
 

@@ -21,14 +21,14 @@ use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::{ErrorType as PinErrorType, OutputPin};
 use embedded_hal::spi::{ErrorType as SpiErrorType, SpiBus};
 use stm32h7::stm32h743 as pac;
-use visco_firmware::core_glue::{ActiveCore, Mode};
+use visco_firmware::core_glue::ActiveCore;
 use visco_firmware::drivers::ad4000::{part, Ad4000, CFG_TURBO};
 use visco_firmware::drivers::ad5541::Ad5541;
 use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, TELEMETRY_DEPTH};
 use visco_firmware::scale::Scale;
 use visco_firmware::spi_device::CsDevice;
 use visco_firmware::spsc::Producer;
-use visco_protocol::{ack, board, BenchFrame, CalibrationFrame, FeedBlock, Source};
+use visco_protocol::{ack, board, BenchFrame, BenchMode, CalibrationFrame, FeedBlock, Source};
 
 #[cfg(not(feature = "panic-never"))]
 use defmt_rtt as _;
@@ -320,12 +320,11 @@ impl loop_body::UOutput for H7U {
 pub struct H7Xy {
     x: Ad5541<DacDev>,
     y: Ad5541<DacDev>,
-    scale: Scale,
 }
 impl loop_body::XyOutput for H7Xy {
-    fn write(&mut self, x_m: f32, y_m: f32) {
-        let (Ok(_) | Err(_)) = self.x.write_code(self.scale.to_code(x_m));
-        let (Ok(_) | Err(_)) = self.y.write_code(self.scale.to_code(y_m));
+    fn write(&mut self, x_code: i32, y_code: i32) {
+        let (Ok(_) | Err(_)) = self.x.write_code(x_code);
+        let (Ok(_) | Err(_)) = self.y.write_code(y_code);
     }
 }
 
@@ -479,12 +478,10 @@ pub fn init() -> Board {
     }
 }
 
-#[allow(clippy::too_many_arguments)]
 pub fn make_loop(
     _b: &mut Board,
     adc_scale: Scale,
-    lateral: Scale,
-    core: Option<ActiveCore>,
+    core: ActiveCore,
     tel: Producer<'static, Item, TELEMETRY_DEPTH>,
     cmds: &'static CommandSlot,
     counters: &'static Counters,
@@ -511,7 +508,6 @@ pub fn make_loop(
         H7Xy {
             x: Ad5541::new(device(spi2(), Pin::output(GPIOC, 6))),
             y: Ad5541::new(device(spi2(), Pin::output(GPIOC, 7))),
-            scale: lateral,
         },
         core,
         tel,
@@ -527,9 +523,8 @@ pub fn take_link(b: &mut Board) -> Uart {
     }
 }
 
-pub fn set_scales(l: &mut Loop, adc: Scale, lateral: Scale) {
+pub fn set_scales(l: &mut Loop, adc: Scale) {
     l.adc.scale = adc;
-    l.xy_out.scale = lateral;
 }
 
 pub fn poll(_b: &mut Board, _telemetry_free: usize) {}
@@ -552,13 +547,13 @@ pub fn set_source(_b: &mut Board, src: Source) -> u8 {
     timer_stop();
     match src {
         Source::Timer { period_ticks } => {
-            app::with_loop(|l| l.index = 0);
+            app::with_loop(|l| l.reset_index());
             if period_ticks != 0 {
                 timer_start(period_ticks);
             }
             ack::OK
         }
-        Source::Feed => ack::UNSUPPORTED,
+        Source::Feed | Source::Table => ack::UNSUPPORTED,
     }
 }
 
@@ -568,7 +563,7 @@ pub fn feed(_b: &mut Board, _block: &FeedBlock) -> u8 {
 
 pub fn bench(
     _b: &mut Board,
-    _mode: Option<Mode>,
+    _mode: BenchMode,
     _steps: u32,
     _period_ticks: u32,
 ) -> Option<BenchFrame> {

@@ -10,6 +10,7 @@ mod demo;
 mod identify;
 mod import;
 mod sweep;
+mod replay;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -35,6 +36,9 @@ enum Command {
     Import(import::ImportArgs),
     /// Identify a recording's viscoelastic parameters (dive, sve, force-curve) and its fit.
     Identify(identify::IdentifyArgs),
+    /// Replay a recording's deflection through the firmware under QEMU, bit for bit against
+    /// the host build of the core.
+    Replay(replay::ReplayArgs),
 }
 
 /// Parses the command line, runs the subcommand, reports errors. Exit status: 0 success,
@@ -46,6 +50,7 @@ pub fn run() -> ExitCode {
         Command::Import(args) => import::run(args),
         Command::Identify(args) => identify::run(args),
         Command::Sweep(args) => sweep::run(args),
+        Command::Replay(args) => replay::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
