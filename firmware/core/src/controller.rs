@@ -33,6 +33,7 @@ use crate::depth::{DepthController, DepthParams};
 use crate::estimator::{Estimator, EstimatorParams, UpdateInfo};
 use crate::excitation::{Excitation, ExcitationParams, SineTable, Tone};
 use crate::geometry::mean_sag;
+use crate::guard::{FaultBits, Guard, GuardParams};
 use crate::prefilter::HighPass;
 use crate::regressor::{Regressor, RegressorParams};
 use crate::units;
@@ -70,6 +71,22 @@ pub mod status {
     pub const SHORT_DWELL: u32 = 1 << 13;
     /// This sample went into the average of a tap's read-out or of a pixel.
     pub const READOUT: u32 = 1 << 14;
+    /// D implied a jump of the tip (a spike): the last good tip position was used.
+    pub const INPUT_SPIKE: u32 = 1 << 15;
+    /// The static tip force exceeded the limit: the tip was retracted at once.
+    pub const FORCE_LIMIT: u32 = 1 << 16;
+    /// SVE: the surface was lost (no contact force); the tip is re-approaching.
+    pub const CONTACT_LOST: u32 = 1 << 17;
+    /// The estimator showed a sustained sign of divergence; P was reset to P₀.
+    pub const EST_DIVERGED: u32 = 1 << 18;
+    /// Any fault bit.
+    pub const FAULTS: u32 = INPUT_INVALID
+        | INPUT_SATURATED
+        | INPUT_SPIKE
+        | FORCE_LIMIT
+        | CONTACT_LOST
+        | EST_DIVERGED
+        | NO_CONTACT;
     /// Shift of the phase code (see [`super::Phase`]) in the status word.
     pub const PHASE_SHIFT: u32 = 24;
 }
@@ -329,7 +346,21 @@ struct Params<T> {
     u_start: T,
     dive: DiveParams<T>,
     sve: SveParams<T>,
+    guard_dive: GuardParams<T>,
+    guard_sve: GuardParams<T>,
+    /// K·γ and K·γ⁺: the contact detector's thresholds as forces (nN).
+    contact_force: T,
+    contact_force_plus: T,
+    /// Estimator updates every this many samples, per mode.
+    dec_dive: u32,
+    dec_sve: u32,
 }
+
+const BITS: FaultBits = FaultBits {
+    invalid: status::INPUT_INVALID,
+    saturated: status::INPUT_SATURATED,
+    spike: status::INPUT_SPIKE,
+};
 
 /// Sums for a read-out average of [c, k, h, depth]. Values are accumulated as deviations from
 /// the first sample so that f32 keeps its precision over tens of thousands of samples.
@@ -386,6 +417,7 @@ struct DiveState<T> {
     y_to: T,
     h: T,
     z0: T,
+    d_free: T,
     theta_warm: [T; 3],
     acc: Accumulator<T>,
     flags: u32,
@@ -404,6 +436,9 @@ struct SveState<T> {
     next_boundary: u32,
     acc: Accumulator<T>,
     x_acc: T,
+    /// The surface was lost (or the force limit hit): re-approaching while the scan goes on.
+    lost: bool,
+    reapproach_from: T,
 }
 
 /// The identification core's per-sample state machine.
@@ -421,7 +456,9 @@ pub struct Controller<T> {
     y_code: i32,
     /// The last y quantised by `set_x_same_y`: (input, code, value).
     y_quantized: (T, i32, T),
-    d_last: T,
+    guard: Guard<T>,
+    /// Counts loop samples between estimator updates (0: update now).
+    tick: u32,
     reg: Regressor<T>,
     contact: ContactDetector<T>,
     exc: Excitation<T>,
@@ -454,6 +491,21 @@ impl<T: SineTable> Controller<T> {
         let r_nm = cfg.tip_radius_m * nm;
 
         let u_span = cfg.limits.u_max_m - cfg.limits.u_min_m;
+        let f = &cfg.faults;
+        let guard = |spike_m: f64, e: &crate::config::EstimatorConfig| {
+            let dec = e.decimation.max(1) as f64;
+            let updates_per_memory = fs / (e.beta_per_s * dec);
+            GuardParams {
+                spike: t(spike_m * nm),
+                hold: samples(f.hold_s, fs),
+                force_max: t(f.force_max_n / units::FORCE),
+                lost: samples(f.lost_s, fs),
+                diverge: (f.diverge_memories * updates_per_memory).max(1.0) as u32,
+                residual_ratio: t(f.residual_ratio),
+                // The running means of |e| and |w| remember one estimator memory.
+                mean_weight: t((1.0 / updates_per_memory).min(1.0)),
+            }
+        };
         let exc = |e: &crate::config::ExcitationConfig| ExcitationParams {
             tone1: Tone::new(e.f1_hz, fs, t(e.a1_m * nm)),
             tone2: Tone::new(e.f2_hz, fs, t(e.a2_m * nm)),
@@ -565,12 +617,24 @@ impl<T: SineTable> Controller<T> {
                 },
                 est: s.estimator.params(fs, u_span),
                 est2: s.estimator.params(fs, u_span),
-                highpass: HighPass::coefficient(s.highpass_hz, fs),
+                // The high-passes run with the estimator, at its update rate.
+                highpass: HighPass::coefficient(
+                    s.highpass_hz,
+                    fs / s.estimator.decimation.max(1) as f64,
+                ),
                 exc: exc(&s.excitation),
                 // Centred at the slow tip position: θ₃ = k·(h_bed − Z_s), zero at first contact;
                 // the depth controller then takes it to k·(δ_ref − s̄).
                 theta0: [t(n_s.c_ns_per_m / units::DAMPING), t(k_s), T::ZERO],
             },
+            guard_dive: guard(cfg.faults.spike_dive_m, &d.estimator),
+            guard_sve: guard(cfg.faults.spike_sve_m, &s.estimator),
+            contact_force: t(cfg.contact.gamma_m * cfg.cantilever.k_n_per_m / units::FORCE),
+            contact_force_plus: t(
+                cfg.contact.gamma_plus_m * cfg.cantilever.k_n_per_m / units::FORCE
+            ),
+            dec_dive: d.estimator.decimation.max(1),
+            dec_sve: s.estimator.decimation.max(1),
         };
         let u0 = p.u_start;
         let (u_code, u, _) = p.u_dac.quantize(u0);
@@ -591,6 +655,7 @@ impl<T: SineTable> Controller<T> {
             y_to: y,
             h: T::ZERO,
             z0: T::ZERO,
+            d_free: T::ZERO,
             theta_warm: p.dive.theta0,
             acc: Accumulator::default(),
             flags: 0,
@@ -607,6 +672,8 @@ impl<T: SineTable> Controller<T> {
             next_boundary: 0,
             acc: Accumulator::default(),
             x_acc: T::ZERO,
+            lost: false,
+            reapproach_from: u,
         };
         Ok(Self {
             est2: Estimator::new(&p.dive.est2, [p.dive.theta0[0], p.dive.theta0[1]]),
@@ -623,7 +690,8 @@ impl<T: SineTable> Controller<T> {
             x_code,
             y_code,
             y_quantized: (y, p.xy_dac.quantize(y).0, p.xy_dac.quantize(y).1),
-            d_last: T::ZERO,
+            guard: Guard::default(),
+            tick: 0,
             reg: Regressor::at_rest(u, u),
             contact: ContactDetector::new(T::ZERO),
             exc: Excitation::default(),
@@ -753,24 +821,26 @@ impl<T: SineTable> Controller<T> {
     pub fn step(&mut self, d_m: T) -> StepOut<T> {
         self.samples += 1;
         let mut st = 0u32;
-        // Input conditioning: the ADC cannot exceed its full scale; a non-finite value (a bus
-        // glitch) is replaced by the last valid one. The estimator skips either.
-        let d_in = d_m * self.p.to_internal;
-        let d_max = self.p.d_max;
-        // The usual case first: inside the full scale (false for NaN).
-        let d = if d_in >= -d_max && d_in <= d_max {
-            d_in
-        } else if d_in.is_finite() {
-            st |= status::INPUT_SATURATED;
-            d_in.clamp_to(-d_max, d_max)
-        } else {
-            st |= status::INPUT_INVALID;
-            self.d_last
+        // Input: out-of-range, non-finite and spiking readings are replaced by the last good
+        // tip position, and the estimator waits (see `crate::guard`).
+        let (gp, dec) = match self.mode {
+            Some(Mode::Sve) => (&self.p.guard_sve, self.p.dec_sve),
+            _ => (&self.p.guard_dive, self.p.dec_dive),
         };
-        self.d_last = d;
+        let input = self
+            .guard
+            .input(gp, d_m * self.p.to_internal, self.u, self.p.d_max, &BITS);
+        st |= input.flags;
+        let d = input.d;
+        let input_ok = input.ok;
+        // The estimator updates on tick 0 of every `dec` samples.
+        self.tick = if self.tick + 1 >= dec {
+            0
+        } else {
+            self.tick + 1
+        };
         let z = self.u - d;
         self.reg.update(&self.p.reg, self.u, z);
-        let input_ok = st & (status::INPUT_INVALID | status::INPUT_SATURATED) == 0;
 
         let u_next = match self.mode {
             Some(Mode::Dive) => self.dive_step(d, z, input_ok, &mut st),
@@ -867,6 +937,7 @@ impl<T: SineTable> Controller<T> {
                 self.set_xy(x, y);
                 if t >= self.p.dive.move_samples {
                     self.contact = ContactDetector::new(d);
+                    self.dive.d_free = d;
                     self.dive.approach_from = u;
                     self.phase = Phase::Approach;
                 }
@@ -890,7 +961,9 @@ impl<T: SineTable> Controller<T> {
             Phase::Indent => {
                 *st |= status::CONTACT;
                 let depth = self.dive.h - self.reg.z().x;
-                if depth >= self.p.dive.indent {
+                if self.dive_force_limit(d, &mut u, st) {
+                    // Retracted.
+                } else if depth >= self.p.dive.indent {
                     self.start_dwell(t, u);
                 } else {
                     match self.approach_u(u, self.dive.approach_from) {
@@ -904,7 +977,11 @@ impl<T: SineTable> Controller<T> {
             }
             Phase::Dwell => {
                 *st |= status::CONTACT;
-                if t >= self.dive.estimate_from && input_ok {
+                if self.dive_force_limit(d, &mut u, st) {
+                    self.dive.u_cmd = u;
+                    return u + self.exc.next(&self.p.dive.exc);
+                }
+                if t >= self.dive.estimate_from && input_ok && self.tick == 0 {
                     let h = self.dive.h;
                     let w = self.reg.w(&self.p.reg);
                     let (info, th) = match self.p.dive.regressor {
@@ -925,7 +1002,17 @@ impl<T: SineTable> Controller<T> {
                             (info, self.est3.theta())
                         }
                     };
-                    let f = Self::est_flags(info);
+                    let mut f = Self::est_flags(info);
+                    let e = match self.p.dive.regressor {
+                        DiveRegressor::Paper => self.est2.last_error(),
+                        DiveRegressor::Offset => self.est3.last_error(),
+                    };
+                    if self.guard.diverging(&self.p.guard_dive, info, e, w) {
+                        self.est2.reset_covariance(&self.p.dive.est2);
+                        self.est3.reset_covariance(&self.p.dive.est3);
+                        f |= status::EST_DIVERGED;
+                        self.dive.flags |= status::EST_DIVERGED;
+                    }
                     *st |= f;
                     if t >= self.dive.readout_from {
                         // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
@@ -956,6 +1043,29 @@ impl<T: SineTable> Controller<T> {
         u + self.exc.next(&self.p.dive.exc)
     }
 
+    /// The DIVE force check (Indent and Dwell): the static force from the low-passed
+    /// deflection against the free one; above the limit the tip jumps clear of the sample in
+    /// this very sample and the tap ends. True when it did.
+    #[inline(always)]
+    fn dive_force_limit(&mut self, d: T, u: &mut T, st: &mut u32) -> bool {
+        self.contact.lowpass(&self.p.contact, d);
+        let force = self.p.reg.stiffness * (self.dive.d_free - self.contact.lowpassed());
+        if force <= self.p.guard_dive.force_max {
+            return false;
+        }
+        *st |= status::FORCE_LIMIT;
+        self.dive.flags |= status::FORCE_LIMIT;
+        self.exc.silence();
+        // Clear of the surface: the contact height plus the clearance, at once.
+        let up = self.dive.h + self.p.clearance;
+        if up > *u {
+            *u = up;
+        }
+        self.dive.u_cmd = *u;
+        self.finish_tap(true);
+        true
+    }
+
     fn start_dwell(&mut self, t: u32, u_hold: T) {
         let p = self.p.dive;
         // The retract from here to clearance above the contact must fit in the tap's slot.
@@ -975,6 +1085,7 @@ impl<T: SineTable> Controller<T> {
         self.dive.estimate_from = estimate_from;
         self.dive.readout_from = readout_from.max(estimate_from);
         self.dive.acc.clear();
+        self.guard.restart_watch();
         self.dive.z0 = self.dive.h - p.indent;
         match p.regressor {
             DiveRegressor::Paper => {
@@ -1070,6 +1181,8 @@ impl<T: SineTable> Controller<T> {
                 let state = self.contact.update(&self.p.contact, d, z);
                 if let ContactState::Confirmed { h } = state {
                     self.sve.z0 = h;
+                    self.sve.lost = false;
+                    self.guard.restart_watch();
                     self.est3.restart(&self.p.sve.est, self.p.sve.theta0);
                     self.est2.restart(
                         &self.p.sve.est2,
@@ -1098,35 +1211,81 @@ impl<T: SineTable> Controller<T> {
                 self.sve.u_cmd
             }
             Phase::Settle | Phase::Forward | Phase::Backward | Phase::Turn => {
-                *st |= status::CONTACT;
-                let mut f = 0;
                 // The contact detector's low-pass keeps running: it gives the slow force. (Its
                 // state is the contact confirmed at the approach, latched until the next move.)
                 self.contact.lowpass(&self.p.contact, d);
+                let force = self.p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
+                if self.sve.lost {
+                    return self.sve_reapproach(t, force, st);
+                }
+                *st |= status::CONTACT;
+                if force > self.p.guard_sve.force_max {
+                    // Clear of the surface at once (the indentation and the clearance), then
+                    // come back down while the scan goes on.
+                    *st |= status::FORCE_LIMIT;
+                    self.exc.silence();
+                    let k = match self.p.sve.regressor {
+                        SveRegressor::Decoupled => self.est2.theta()[1],
+                        SveRegressor::Paper => self.est3.theta()[1],
+                    };
+                    self.sve.u_cmd += force / k + self.p.clearance;
+                    self.sve_lose_surface();
+                    return self.sve.u_cmd;
+                }
+                if self
+                    .guard
+                    .surface_lost(&self.p.guard_sve, force < self.p.contact_force)
+                {
+                    *st |= status::CONTACT_LOST;
+                    self.sve_lose_surface();
+                }
+                let mut f = 0;
                 let w = self.reg.w(&self.p.reg);
                 let phi = self.reg.phi_sve(self.sve.z0);
+                let update = input_ok && self.tick == 0;
                 // θ̂₂ ≥ k_min > 0 by projection, so the divisions are safe.
                 let (th, h_hat, depth) = match self.p.sve.regressor {
                     SveRegressor::Decoupled => {
-                        // The high-passes run on every sample to keep their state continuous.
-                        let hp = &mut self.sve.hp;
-                        let wh = hp[0].update(self.p.sve.highpass, w);
-                        let phi_h = [
-                            hp[1].update(self.p.sve.highpass, phi[0]),
-                            hp[2].update(self.p.sve.highpass, phi[1]),
-                        ];
-                        if input_ok {
-                            f = Self::est_flags(self.est2.update(&self.p.sve.est2, wh, &phi_h));
+                        if self.tick == 0 {
+                            // The high-passes run at the estimator's rate, on every update
+                            // sample, so their state stays continuous.
+                            let hp = &mut self.sve.hp;
+                            let wh = hp[0].update(self.p.sve.highpass, w);
+                            let phi_h = [
+                                hp[1].update(self.p.sve.highpass, phi[0]),
+                                hp[2].update(self.p.sve.highpass, phi[1]),
+                            ];
+                            if update {
+                                let info = self.est2.update(&self.p.sve.est2, wh, &phi_h);
+                                f = Self::est_flags(info);
+                                if self.guard.diverging(
+                                    &self.p.guard_sve,
+                                    info,
+                                    self.est2.last_error(),
+                                    wh,
+                                ) {
+                                    self.est2.reset_covariance(&self.p.sve.est2);
+                                    f |= status::EST_DIVERGED;
+                                }
+                            }
                         }
                         let th = self.est2.theta();
-                        let force =
-                            self.p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
                         let depth = force / th[1];
                         ([th[0], th[1], T::ZERO], self.reg.z().x + depth, depth)
                     }
                     SveRegressor::Paper => {
-                        if input_ok {
-                            f = Self::est_flags(self.est3.update(&self.p.sve.est, w, &phi));
+                        if update {
+                            let info = self.est3.update(&self.p.sve.est, w, &phi);
+                            f = Self::est_flags(info);
+                            if self.guard.diverging(
+                                &self.p.guard_sve,
+                                info,
+                                self.est3.last_error(),
+                                w,
+                            ) {
+                                self.est3.reset_covariance(&self.p.sve.est);
+                                f |= status::EST_DIVERGED;
+                            }
                         }
                         let th = self.est3.theta();
                         let h = self.sve.z0 + th[2] / th[1];
@@ -1158,6 +1317,48 @@ impl<T: SineTable> Controller<T> {
             }
             _ => self.sve.u_cmd,
         }
+    }
+
+    /// The surface is gone (a pit, the force limit): excitation out, estimator and depth
+    /// integrator frozen, re-approach from here while the scan goes on.
+    fn sve_lose_surface(&mut self) {
+        self.sve.lost = true;
+        self.sve.reapproach_from = self.sve.u_cmd;
+        self.exc.set_on(false);
+    }
+
+    /// One sample of the SVE re-approach: lower the base at the approach speed until the
+    /// force is back (then resume with the depth integrator starting where the contact was
+    /// found), give up after the approach's travel. The scan and its pixels go on, flagged.
+    fn sve_reapproach(&mut self, t: u32, force: T, st: &mut u32) -> T {
+        *st |= status::CONTACT_LOST;
+        if force > self.p.contact_force_plus {
+            self.sve.lost = false;
+            self.guard.surface_found();
+            self.guard.restart_watch();
+            self.depth = DepthController::new(self.sve.u_cmd);
+            self.exc.set_on(true);
+        } else {
+            match self.approach_u(self.sve.u_cmd, self.sve.reapproach_from) {
+                Some(u) => self.sve.u_cmd = u,
+                None => {
+                    *st |= status::NO_CONTACT;
+                    self.phase = Phase::Retract;
+                    return self.sve.u_cmd;
+                }
+            }
+        }
+        let th = self.est2.theta();
+        let th3 = self.est3.theta();
+        let (c, k) = match self.p.sve.regressor {
+            SveRegressor::Decoupled => (th[0], th[1]),
+            SveRegressor::Paper => (th3[0], th3[1]),
+        };
+        let h = self.reg.z().x;
+        if self.sve_sequence(t, [c, k, h, T::ZERO], status::CONTACT_LOST) {
+            *st |= status::READOUT;
+        }
+        self.sve.u_cmd + self.exc.next(&self.p.sve.exc)
     }
 
     /// The raster: settle, then forward, backward, turn per line; pixel bins along the way.

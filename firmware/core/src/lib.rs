@@ -22,6 +22,7 @@
 //! | depth I-controller (SVE) | [`depth`] | (27)–(28) |
 //! | two-tone excitation | [`excitation`] | (29) |
 //! | sequencers, U, X, Y | [`controller`] | 3.1, 3.2, 5.1 |
+//! | bad input, force limit, lost surface, divergence | [`guard`] | — |
 //! | per-element scaling (outside the loop) | [`geometry`] | (30)–(32), App. A |
 //!
 //! The public API is SI; inside, lengths are nm, forces nN and time µs ([`units`]).
@@ -44,13 +45,14 @@ pub mod discretize;
 pub mod estimator;
 pub mod excitation;
 pub mod geometry;
+pub mod guard;
 pub mod observer;
 pub mod prefilter;
 pub mod real;
 pub mod regressor;
 pub mod units;
 
-pub use config::{Cantilever, Config, ConfigError, DiveRegressor, SveRegressor};
+pub use config::{Cantilever, Config, ConfigError, DiveRegressor, FaultConfig, SveRegressor};
 pub use controller::{
     status, Command, Controller, Mode, Phase, PixelRecord, Record, StepOut, TapRecord,
 };

@@ -9,8 +9,8 @@
 mod demo;
 mod identify;
 mod import;
-mod sweep;
 mod replay;
+mod sweep;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;

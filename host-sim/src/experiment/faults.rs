@@ -111,7 +111,9 @@ fn corrupt(class: FaultClass, n: u64, d: f32, full_scale: f32, rng: &mut u64) ->
     match class {
         FaultClass::NonFinite if n < 100 => Some(f32::NAN),
         FaultClass::Saturated if n < 100 => Some(-full_scale),
-        FaultClass::Spikes if n < 2500 && n % 25 == 0 => Some(d + if next() % 2 == 0 { 1.5e-6 } else { -1.5e-6 }),
+        FaultClass::Spikes if n < 2500 && n % 25 == 0 => {
+            Some(d + if next() % 2 == 0 { 1.5e-6 } else { -1.5e-6 })
+        }
         FaultClass::Dropouts if n < 2500 && next() % 10 < 3 => Some(f32::NAN),
         FaultClass::OffsetStep if n < 2500 => Some(d + 40e-9),
         _ => None,
@@ -141,7 +143,7 @@ pub fn run_fault(class: FaultClass, sample_rate_hz: f64, seed: u64) -> FaultOutc
     c.sve.y0_m = 2.5e-6;
     c.sve.line_period_s = 2.0;
     let cfg = setup.config;
-    let force_limit_n = cfg.limits.force_max_n;
+    let force_limit_n = cfg.faults.force_max_n;
     let mut ctrl = Controller::<f32>::new(&cfg).expect("config");
     let mut plant: Plant = setup.build_plant().expect("plant");
     let mode = class.mode();
@@ -174,7 +176,9 @@ pub fn run_fault(class: FaultClass, sample_rate_hz: f64, seed: u64) -> FaultOutc
             ctrl.take_record();
         }
         let (ce, ke, he) = ctrl.estimates();
-        let ok = [out.u_m, out.x_m, out.y_m, ce, ke, he].iter().all(|v| v.is_finite())
+        let ok = [out.u_m, out.x_m, out.y_m, ce, ke, he]
+            .iter()
+            .all(|v| v.is_finite())
             && out.u_m as f64 >= cfg.limits.u_min_m
             && out.u_m as f64 <= cfg.limits.u_max_m
             && ce >= 0.0
@@ -210,14 +214,26 @@ pub fn run_fault(class: FaultClass, sample_rate_hz: f64, seed: u64) -> FaultOutc
         if ctrl.phase() == Phase::Done {
             break;
         }
-        d = (plant.step_nm(out.u_m as f64 * 1e9, out.x_m as f64 * 1e9, out.y_m as f64 * 1e9) * 1e-9) as f32;
+        d = (plant.step_nm(
+            out.u_m as f64 * 1e9,
+            out.x_m as f64 * 1e9,
+            out.y_m as f64 * 1e9,
+        ) * 1e-9) as f32;
     }
     // SVE: the pre-fault estimates are those over the flat bed, which the line returns to.
-    let within = |v: &(u64, f64, f64)| (v.1 / before[0] - 1.0).abs() <= 0.05 && (v.2 / before[1] - 1.0).abs() <= 0.05;
+    let within = |v: &(u64, f64, f64)| {
+        (v.1 / before[0] - 1.0).abs() <= 0.05 && (v.2 / before[1] - 1.0).abs() <= 0.05
+    };
     let end = fault_end.unwrap_or(u64::MAX);
-    let last_out = history.iter().rev().find(|v| v.0 >= end && !within(v)).map(|v| v.0);
+    let last_out = history
+        .iter()
+        .rev()
+        .find(|v| v.0 >= end && !within(v))
+        .map(|v| v.0);
     let recovery_s = match (fault_end, history.last()) {
-        (Some(e), Some(last)) if within(last) => Some(last_out.map_or(0.0, |o| (o + 1 - e) as f64 * dt)),
+        (Some(e), Some(last)) if within(last) => {
+            Some(last_out.map_or(0.0, |o| (o + 1 - e) as f64 * dt))
+        }
         _ => None,
     };
     FaultOutcome {

@@ -32,6 +32,7 @@
 
 pub mod demo;
 pub mod excitation_study;
+pub mod faults;
 pub mod metrics;
 pub mod scaling;
 pub mod sweep;
