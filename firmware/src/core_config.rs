@@ -20,7 +20,8 @@
 //! The set is every scalar of `Config` that a user running the instrument may want to
 //! change: sample rate, cantilever and tip, the nominal contacts, prefilter, contact
 //! detector, approach, converter ranges, the DIVE grid and timing, the SVE raster and depth
-//! control, both estimators and both excitations. Parameter `CORE_BASE + i` is
+//! control, both estimators (with their decimation) and both excitations, and the fault
+//! handling (`faults.*`). Parameter `CORE_BASE + i` is
 //! `PARAMS[i]`; enums are numeric (see [`PARAMS`]).
 
 use visco_core::{
@@ -34,7 +35,7 @@ pub const DEFAULT_SAMPLE_RATE_HZ: f64 = 1e6;
 /// The settable fields, by dotted path (the names `ConfigError` uses). Id = `CORE_BASE` +
 /// index. Enums: `dive.regressor` 0 = paper, 1 = offset; `sve.regressor` 0 = paper,
 /// 1 = decoupled; `*.estimator.kind` 0 = least squares, 1 = gradient.
-pub const PARAMS: [&str; 86] = [
+pub const PARAMS: [&str; 96] = [
     "sample_rate_hz",
     "cantilever.k_n_per_m",
     "cantilever.c_ns_per_m",
@@ -129,6 +130,17 @@ pub const PARAMS: [&str; 86] = [
     "sve.excitation.a1_m",
     "sve.excitation.a2_m",
     "sve.excitation.ramp_s",
+    "dive.estimator.decimation",
+    "sve.estimator.decimation",
+    "faults.spike_dive_m",
+    "faults.spike_sve_m",
+    // 90
+    "faults.hold_s",
+    "faults.force_max_n",
+    "faults.lost_s",
+    "faults.lost_force_n",
+    "faults.diverge_memories",
+    "faults.residual_ratio",
 ];
 
 /// How many core parameter ids can be staged (ids `CORE_BASE .. CORE_BASE + MAX_PARAMS`).
@@ -351,6 +363,16 @@ fn set_sve_field(c: &mut Config, i: usize, name: &'static str, v: f64) -> Result
         83 => s.excitation.a1_m = v,
         84 => s.excitation.a2_m = v,
         85 => s.excitation.ramp_s = v,
+        86 => c.dive.estimator.decimation = integer(name, v, 1, 64)?,
+        87 => se.decimation = integer(name, v, 1, 64)?,
+        88 => c.faults.spike_dive_m = v,
+        89 => c.faults.spike_sve_m = v,
+        90 => c.faults.hold_s = v,
+        91 => c.faults.force_max_n = v,
+        92 => c.faults.lost_s = v,
+        93 => c.faults.lost_force_n = v,
+        94 => c.faults.diverge_memories = v,
+        95 => c.faults.residual_ratio = v,
         _ => return Err(reject("?", v, "unknown parameter")),
     }
     Ok(())

@@ -176,8 +176,8 @@ pub struct Limits {
 /// Fault handling (see [`crate::guard`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FaultConfig {
-    /// Largest believable change of the tip position Z between two samples in DIVE (m); a
-    /// reading implying more is a spike.
+    /// Largest believable second difference of the tip position Z (its change of velocity
+    /// over one sample, times one sample) in DIVE (m); a reading implying more is a spike.
     pub spike_dive_m: f64,
     /// The same in SVE (m).
     pub spike_sve_m: f64,
@@ -187,6 +187,8 @@ pub struct FaultConfig {
     pub force_max_n: f64,
     /// SVE: no contact force for this long is a lost surface (s).
     pub lost_s: f64,
+    /// SVE: "no contact force" is a static force below this (N).
+    pub lost_force_n: f64,
     /// A divergence sign must last this many estimator memories (1/β) to reset P.
     pub diverge_memories: f64,
     /// Residual beyond this fraction of the measurement is "far beyond the noise".
@@ -698,8 +700,10 @@ impl Config {
             )
         };
         let indent = 450e-9;
-        let tip_speed =
-            |tip1: f64, tip2: f64| 2.0 * core::f64::consts::PI * (f1 * tip1 + f2 * tip2);
+        let w = |f: f64| 2.0 * core::f64::consts::PI * f;
+        let tip_accel = |tip1: f64, tip2: f64| w(f1) * w(f1) * tip1 + w(f2) * w(f2) * tip2;
+        let ringing = w(f0) * w(f0) * 100e-9;
+        let fs2 = sample_rate_hz * sample_rate_hz;
         let (dv, dp) = rms(100e-9, 25e-9);
         let dive_phi = [dv, dp, 1.0];
         let (sv, sp) = rms(5e-9, 8e-9);
@@ -782,11 +786,13 @@ impl Config {
                 excitation: sve_exc,
             },
             faults: FaultConfig {
-                // The tip's fastest motion per sample under the tones (A₁ω₁ + A₂ω₂)/f_s, four
-                // times over, plus 20 nm for noise and the approach: 125 nm (DIVE) and 26 nm
-                // (SVE) at 500 kHz. The base may jump (the DAC, a retract); the tip cannot.
-                spike_dive_m: 4.0 * tip_speed(100e-9, 25e-9) / sample_rate_hz + 20e-9,
-                spike_sve_m: 4.0 * tip_speed(5e-9, 8e-9) / sample_rate_hz + 20e-9,
+                // The tip has mass: its position cannot change its *velocity* abruptly. The
+                // largest believable second difference of Z is the tones' (A₁ω₁² + A₂ω₂²)/f_s²
+                // plus a free ringing of 100 nm at f₀ (a lost contact), four times over, plus
+                // 20 nm for noise: ~26 nm at 500 kHz. The base may jump (the DAC, a retract);
+                // the tip cannot.
+                spike_dive_m: 4.0 * (tip_accel(100e-9, 25e-9) + ringing) / fs2 + 20e-9,
+                spike_sve_m: 4.0 * (tip_accel(5e-9, 8e-9) + ringing) / fs2 + 20e-9,
                 // Ten prefilter time constants: the held samples have left the filters.
                 hold_s: 10.0 * lambda,
                 // The paper's DIVE presses with ~35–50 nN static (k·(δ − R/3) plus the f₂ swing);
@@ -794,6 +800,9 @@ impl Config {
                 force_max_n: 150e-9,
                 // Forty cycles of f₂ without force: not the excitation's swing, a lost surface.
                 lost_s: 40.0 / f2,
+                // A fifth of the ~5–7 nN the paper's SVE presses with at 150 nm, far above the
+                // ≲ 0.1 nN of noise and tone residue left in the slow force (see `guard`).
+                lost_force_n: 1e-9,
                 diverge_memories: 2.0,
                 // A converged fit leaves ~1 % of w; half of it unexplained for two memories is
                 // a model the data no longer follows.
@@ -1088,6 +1097,7 @@ impl Config {
             "must be above the contact detector's force K·γ⁺",
         )?;
         positive("faults.lost_s", f.lost_s)?;
+        positive("faults.lost_force_n", f.lost_force_n)?;
         check(
             f.lost_s * fs >= 2.0 && f.lost_s * fs < 1e6,
             "faults.lost_s",

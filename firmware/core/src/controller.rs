@@ -348,9 +348,11 @@ struct Params<T> {
     sve: SveParams<T>,
     guard_dive: GuardParams<T>,
     guard_sve: GuardParams<T>,
-    /// K·γ and K·γ⁺: the contact detector's thresholds as forces (nN).
-    contact_force: T,
-    contact_force_plus: T,
+    /// Weight per sample of the slow force low-pass (corner f₂/20, so the tones' swing of the
+    /// deflection does not reach the surface check).
+    force_slow_weight: T,
+    /// SVE: a static force below this is no contact (nN).
+    lost_force: T,
     /// Estimator updates every this many samples, per mode.
     dec_dive: u32,
     dec_sve: u32,
@@ -439,6 +441,11 @@ struct SveState<T> {
     /// The surface was lost (or the force limit hit): re-approaching while the scan goes on.
     lost: bool,
     reapproach_from: T,
+    /// The static force low-passed again below the tones (nN): the surface check's input.
+    force_slow: T,
+    /// While re-approaching: the slow force has been below the contact threshold (the tip
+    /// really is off the surface; a contact found before that is the old one, still decaying).
+    left: bool,
 }
 
 /// The identification core's per-sample state machine.
@@ -629,10 +636,10 @@ impl<T: SineTable> Controller<T> {
             },
             guard_dive: guard(cfg.faults.spike_dive_m, &d.estimator),
             guard_sve: guard(cfg.faults.spike_sve_m, &s.estimator),
-            contact_force: t(cfg.contact.gamma_m * cfg.cantilever.k_n_per_m / units::FORCE),
-            contact_force_plus: t(
-                cfg.contact.gamma_plus_m * cfg.cantilever.k_n_per_m / units::FORCE
+            force_slow_weight: t(
+                1.0 - libm::exp(-2.0 * core::f64::consts::PI * s.excitation.f2_hz / 20.0 / fs)
             ),
+            lost_force: t(cfg.faults.lost_force_n / units::FORCE),
             dec_dive: d.estimator.decimation.max(1),
             dec_sve: s.estimator.decimation.max(1),
         };
@@ -673,6 +680,8 @@ impl<T: SineTable> Controller<T> {
             acc: Accumulator::default(),
             x_acc: T::ZERO,
             lost: false,
+            force_slow: T::ZERO,
+            left: false,
             reapproach_from: u,
         };
         Ok(Self {
@@ -814,6 +823,11 @@ impl<T: SineTable> Controller<T> {
     /// Read access to the two-parameter estimator (tests, telemetry).
     pub fn estimator2(&self) -> &Estimator<T, 2> {
         &self.est2
+    }
+
+    /// SVE: the static tip force low-passed below the tones, as the surface check sees it (N).
+    pub fn sve_static_force_n(&self) -> T {
+        self.sve.force_slow * T::from_f64(units::FORCE)
     }
 
     /// One loop sample: the measured deflection `d_m` (m) in, the next outputs out.
@@ -1062,6 +1076,8 @@ impl<T: SineTable> Controller<T> {
             *u = up;
         }
         self.dive.u_cmd = *u;
+        // The tip is about to move fast on purpose: no spike check against the old position.
+        self.guard.reprime();
         self.finish_tap(true);
         true
     }
@@ -1182,6 +1198,7 @@ impl<T: SineTable> Controller<T> {
                 if let ContactState::Confirmed { h } = state {
                     self.sve.z0 = h;
                     self.sve.lost = false;
+                    self.sve.force_slow = T::ZERO;
                     self.guard.restart_watch();
                     self.est3.restart(&self.p.sve.est, self.p.sve.theta0);
                     self.est2.restart(
@@ -1215,8 +1232,9 @@ impl<T: SineTable> Controller<T> {
                 // state is the contact confirmed at the approach, latched until the next move.)
                 self.contact.lowpass(&self.p.contact, d);
                 let force = self.p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
+                self.sve.force_slow += self.p.force_slow_weight * (force - self.sve.force_slow);
                 if self.sve.lost {
-                    return self.sve_reapproach(t, force, st);
+                    return self.sve_reapproach(t, st);
                 }
                 *st |= status::CONTACT;
                 if force > self.p.guard_sve.force_max {
@@ -1228,14 +1246,18 @@ impl<T: SineTable> Controller<T> {
                         SveRegressor::Decoupled => self.est2.theta()[1],
                         SveRegressor::Paper => self.est3.theta()[1],
                     };
-                    self.sve.u_cmd += force / k + self.p.clearance;
+                    // Up by the cantilever's bend and the indentation (springs in series), and
+                    // the clearance.
+                    self.sve.u_cmd += force / self.p.reg.stiffness + force / k + self.p.clearance;
+                    self.guard.reprime();
                     self.sve_lose_surface();
                     return self.sve.u_cmd;
                 }
-                if self
-                    .guard
-                    .surface_lost(&self.p.guard_sve, force < self.p.contact_force)
-                {
+                if self.guard.surface_lost(
+                    &self.p.guard_sve,
+                    // Not while settling: the depth is still being reached.
+                    self.phase != Phase::Settle && self.sve.force_slow < self.p.lost_force,
+                ) {
                     *st |= status::CONTACT_LOST;
                     self.sve_lose_surface();
                 }
@@ -1323,6 +1345,7 @@ impl<T: SineTable> Controller<T> {
     /// integrator frozen, re-approach from here while the scan goes on.
     fn sve_lose_surface(&mut self) {
         self.sve.lost = true;
+        self.sve.left = false;
         self.sve.reapproach_from = self.sve.u_cmd;
         self.exc.set_on(false);
     }
@@ -1330,9 +1353,15 @@ impl<T: SineTable> Controller<T> {
     /// One sample of the SVE re-approach: lower the base at the approach speed until the
     /// force is back (then resume with the depth integrator starting where the contact was
     /// found), give up after the approach's travel. The scan and its pixels go on, flagged.
-    fn sve_reapproach(&mut self, t: u32, force: T, st: &mut u32) -> T {
+    fn sve_reapproach(&mut self, t: u32, st: &mut u32) -> T {
         *st |= status::CONTACT_LOST;
-        if force > self.p.contact_force_plus {
+        if !self.sve.left {
+            // Wait, holding U, until the tip is off the surface (after a force-limit jump the
+            // slow force takes a few of its time constants to fall).
+            self.sve.left = self.sve.force_slow < self.p.lost_force;
+        } else if self.sve.force_slow > self.p.lost_force {
+            // Found on the slow force too: the free cantilever's ringing and the tones' swing
+            // reach the fast one.
             self.sve.lost = false;
             self.guard.surface_found();
             self.guard.restart_watch();

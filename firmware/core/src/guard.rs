@@ -5,9 +5,16 @@
 //! * **Non-finite** (a bus glitch, or a *missing* sample, which the board reports as NaN):
 //!   rejected, flag `INPUT_INVALID`.
 //! * **Saturated** (at or beyond the ADC's full scale): rejected, flag `INPUT_SATURATED`.
-//! * **Spiking**: the tip has mass, so Z = U − D cannot jump; a sample whose Z moved by more
-//!   than `spike` since the last good one (the largest believable tip motion per sample, from
-//!   the excitation and the approach speed, with a margin) is rejected, flag `INPUT_SPIKE`.
+//! * **Spiking**: the tip has mass, so its position Z = U − D cannot change its velocity
+//!   abruptly; a sample whose Z is further than `spike` from the straight-line prediction from
+//!   the last two good ones (a bound on the second difference, from the excitation, a free
+//!   ringing at f₀ and the noise) is rejected, flag `INPUT_SPIKE`. A test on the first
+//!   difference would reject a legitimately fast tip (a cantilever ringing after it lost the
+//!   sample); the prediction follows it. The allowed distance grows by `spike` with every
+//!   sample since the last good one, plus the coasting velocity (the prediction coasts while
+//!   the input is bad, and that velocity may be as wrong as itself), so the
+//!   check re-locks after a burst of bad samples however the tip moved meanwhile, and a
+//!   lasting offset is accepted after `offset / spike` samples instead of rejected forever.
 //!
 //! A rejected sample is replaced by the last good **tip position** Z (so D = U − Z follows the
 //! DAC, and the prefilters see a held Z rather than a jump), and the estimator is frozen while
@@ -42,7 +49,7 @@ use crate::real::Real;
 /// Constants of the fault handling (internal units).
 #[derive(Clone, Copy, Debug)]
 pub struct GuardParams<T> {
-    /// Largest believable change of the tip position Z between samples (nm).
+    /// Largest believable distance of Z from its straight-line prediction (nm).
     pub spike: T,
     /// Samples the estimator stays frozen after bad input.
     pub hold: u32,
@@ -62,7 +69,16 @@ pub struct GuardParams<T> {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Guard<T> {
     z_good: T,
-    primed: bool,
+    /// Z per sample at the last good sample (its difference from the one before).
+    velocity: T,
+    /// Prediction of Z for this sample: z_good coasting at `velocity`.
+    predicted: T,
+    /// Samples since the last good one (≥ 1 once a good sample was seen).
+    elapsed: T,
+    /// Largest believable |Z − predicted| now: `spike` per sample since the last good one.
+    reach: T,
+    /// Good samples seen since (re)priming, up to 2: position, then velocity known.
+    known: u8,
     hold: u32,
     lost_count: u32,
     bound_count: u32,
@@ -98,11 +114,21 @@ impl<T: Real> Guard<T> {
         let z = u - d;
         // In range (false for NaN), and not a jump of the tip.
         let in_range = d > -d_max && d < d_max;
-        let jump = z - self.z_good;
-        let plausible = !self.primed || (jump < p.spike && jump > -p.spike);
+        self.predicted += self.velocity;
+        let jump = z - self.predicted;
+        let plausible = self.known < 2 || (jump < self.reach && jump > -self.reach);
         if in_range && plausible {
+            // The mean velocity since the last good sample (over the bad ones in between).
+            self.velocity = if self.known > 0 {
+                (z - self.z_good) / self.elapsed
+            } else {
+                T::ZERO
+            };
+            self.elapsed = T::ONE;
             self.z_good = z;
-            self.primed = true;
+            self.predicted = z;
+            self.reach = p.spike;
+            self.known = if self.known > 0 { 2 } else { 1 };
             let ok = self.hold == 0;
             if !ok {
                 self.hold -= 1;
@@ -119,6 +145,9 @@ impl<T: Real> Guard<T> {
             flags.spike
         };
         self.hold = p.hold;
+        // The prediction coasts at the last velocity, which may itself be off by as much.
+        self.reach += p.spike + self.velocity.abs();
+        self.elapsed += T::ONE;
         // Hold the tip where it was: D follows the DAC.
         Input {
             d: u - self.z_good,
@@ -130,7 +159,7 @@ impl<T: Real> Guard<T> {
     /// Forget the last good tip position (after a jump of U that moves the tip legitimately
     /// fast, such as the force-limit retract).
     pub fn reprime(&mut self) {
-        self.primed = false;
+        self.known = 0;
     }
 
     /// The SVE surface check: `no_force` when the low-passed force is below the contact
@@ -220,6 +249,8 @@ mod tests {
         let p = params();
         let mut g = Guard::<f64>::default();
         let u = 100.0;
+        // Two good samples: the position and the velocity known.
+        assert!(g.input(&p, -20.0, u, 1000.0, &BITS).ok);
         assert!(g.input(&p, -20.0, u, 1000.0, &BITS).ok);
         // A NaN, a saturated value and a spike: each held at Z = 120, flagged.
         for (d, f) in [(f64::NAN, 1), (1000.0, 2), (-400.0, 4)] {
@@ -236,6 +267,48 @@ mod tests {
         // The held Z follows the DAC: with U moved by 30, the replacement D moved by 30.
         let r = g.input(&p, f64::INFINITY, u + 30.0, 1000.0, &BITS);
         assert_eq!(r.d, -20.5 + 30.0);
+    }
+
+    #[test]
+    fn the_spike_check_relocks_after_the_tip_moved_during_bad_input() {
+        let p = params();
+        let mut g = Guard::<f64>::default();
+        let u = 100.0;
+        assert!(g.input(&p, 0.0, u, 1000.0, &BITS).ok);
+        // Five missing samples while the tip moved by 200 (4 × spike): the next good sample
+        // is within reach (6 × spike) and accepted.
+        for _ in 0..5 {
+            assert!(!g.input(&p, f64::NAN, u, 1000.0, &BITS).ok);
+        }
+        let r = g.input(&p, -200.0, u, 1000.0, &BITS);
+        assert_eq!((r.flags, r.d), (0, -200.0));
+        // The tip at rest again (the mean velocity over the gap is forgotten in one sample).
+        assert_eq!(g.input(&p, -200.0, u, 1000.0, &BITS).flags, 0);
+        assert_eq!(g.input(&p, -200.0, u, 1000.0, &BITS).flags, 0);
+        // A lasting jump of 500 (10 × spike) is accepted after at most 10 samples.
+        let mut rejected = 0;
+        while g.input(&p, 300.0, u, 1000.0, &BITS).flags != 0 {
+            rejected += 1;
+            assert!(rejected <= 10);
+        }
+        assert_eq!(g.input(&p, 300.0, u, 1000.0, &BITS).flags, 0);
+        assert_eq!(g.input(&p, 300.0, u, 1000.0, &BITS).flags, 0);
+        // Whereas one isolated spike is rejected and the next sample accepted.
+        assert_eq!(g.input(&p, -300.0, u, 1000.0, &BITS).flags, 4);
+        assert_eq!(g.input(&p, 300.0, u, 1000.0, &BITS).flags, 0);
+    }
+
+    #[test]
+    fn a_fast_but_smooth_tip_is_not_a_spike() {
+        // A free cantilever ringing at 20 kHz with 300 nm amplitude, sampled at 500 kHz: Z moves
+        // up to 75 nm per sample (far beyond `spike`), but its second difference is ≤ 19 nm.
+        let p = params();
+        let mut g = Guard::<f64>::default();
+        let w = 2.0 * core::f64::consts::PI * 20e3 / 500e3;
+        for n in 0..10_000 {
+            let d = 300.0 * (w * n as f64).sin();
+            assert_eq!(g.input(&p, d, 0.0, 1000.0, &BITS).flags, 0, "sample {n}");
+        }
     }
 
     #[test]

@@ -7,6 +7,7 @@
 //! `RecordingError` already read `FILE:LINE: reason (fix: ...)`.
 
 mod demo;
+mod faults;
 mod identify;
 mod import;
 mod replay;
@@ -32,6 +33,8 @@ enum Command {
     Demo(demo::DemoArgs),
     /// Imaging speed against accuracy (SVE line period, DIVE tap time) and the excitation study.
     Sweep(sweep::SweepArgs),
+    /// Fault injection on the simulated instrument: boundedness, tip force, flags, recovery.
+    Faults(faults::FaultsArgs),
     /// Convert a vendor force-curve file (JPK, AFM Workshop, NT-MDT) into recording CSVs.
     Import(import::ImportArgs),
     /// Identify a recording's viscoelastic parameters (dive, sve, force-curve) and its fit.
@@ -47,6 +50,7 @@ pub fn run() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Demo(args) => demo::run(args),
+        Command::Faults(args) => faults::run(args),
         Command::Import(args) => import::run(args),
         Command::Identify(args) => identify::run(args),
         Command::Sweep(args) => sweep::run(args),

@@ -81,19 +81,19 @@ pub struct FaultOutcome {
     /// Time from the end of the fault until ĉ and k̂ are back within 5 % of their pre-fault
     /// values for good (s); `None` if they never are within the window.
     pub recovery_s: Option<f64>,
-    /// The pre-fault ĉ, k̂ (aggregates, SI).
+    /// The fault-free run's ĉ, k̂ when the fault starts (aggregates, SI).
     pub before: [f64; 2],
     /// ĉ, k̂ at the end of the window.
     pub after: [f64; 2],
 }
 
-/// The sample faults run on: a flat bed of mid-range elements 100 nm high, with a pit 600 nm
+/// The sample faults run on (`None`: the fault-free reference): a flat bed of mid-range elements 100 nm high, with a pit 600 nm
 /// deep or a stiff inclusion 250 nm high where the class needs one (x from 2.0 to 2.6 µm).
-pub fn fault_sample(class: FaultClass) -> Sample {
+pub fn fault_sample(class: Option<FaultClass>) -> Sample {
     let inside = |x: f64| (2.0e-6..2.6e-6).contains(&x);
     Sample::from_fn(50, 50, 100e-9, [50e-9, 50e-9], |x, _| match class {
-        FaultClass::ContactLoss if inside(x) => (-500e-9, 6e-7, 3.5e-3),
-        FaultClass::ForceLimit if inside(x) => (350e-9, 6e-5, 0.35),
+        Some(FaultClass::ContactLoss) if inside(x) => (-500e-9, 6e-7, 3.5e-3),
+        Some(FaultClass::ForceLimit) if inside(x) => (350e-9, 6e-5, 0.35),
         _ => (100e-9, 6e-7, 3.5e-3),
     })
     .expect("fault sample")
@@ -130,9 +130,20 @@ fn fault_samples(class: FaultClass) -> u64 {
     }
 }
 
-/// Run one fault class at `sample_rate_hz` and measure it.
-pub fn run_fault(class: FaultClass, sample_rate_hz: f64, seed: u64) -> FaultOutcome {
-    let mut setup = Setup::paper(fault_sample(class), sample_rate_hz, seed);
+/// One closed-loop run of a fault class's experiment, with the fault (`inject`) or without.
+struct Run {
+    /// (sample, ĉ, k̂) from the fault's start to the end of the window.
+    history: Vec<(u64, f64, f64)>,
+    fault_end: Option<u64>,
+    unbounded: u64,
+    max_force_n: f64,
+    flags: u32,
+    force_limit_n: f64,
+}
+
+fn simulate(class: FaultClass, inject: bool, sample_rate_hz: f64, seed: u64) -> Run {
+    let sample = fault_sample(if inject { Some(class) } else { None });
+    let mut setup = Setup::paper(sample, sample_rate_hz, seed);
     let c = &mut setup.config;
     c.dive.nx = 1;
     c.dive.ny = 1;
@@ -143,30 +154,30 @@ pub fn run_fault(class: FaultClass, sample_rate_hz: f64, seed: u64) -> FaultOutc
     c.sve.y0_m = 2.5e-6;
     c.sve.line_period_s = 2.0;
     let cfg = setup.config;
-    let force_limit_n = cfg.faults.force_max_n;
     let mut ctrl = Controller::<f32>::new(&cfg).expect("config");
     let mut plant: Plant = setup.build_plant().expect("plant");
     let mode = class.mode();
     ctrl.command(Command::Start(mode));
     let fs = cfg.sample_rate_hz;
-    let dt = 1.0 / fs;
     let full_scale = cfg.limits.d_full_scale_m as f32;
-    // When to inject: DIVE 60 ms into the estimating part of the dwell; SVE plant faults are in
-    // the sample (the forward line reaches x = 2 µm at 0.4 s); estimates compared over windows.
+    let mut run = Run {
+        history: Vec::new(),
+        fault_end: None,
+        unbounded: 0,
+        max_force_n: 0.0,
+        flags: 0,
+        force_limit_n: cfg.faults.force_max_n,
+    };
+    // When: DIVE 60 ms into the estimating part of the dwell; SVE where the tip (radius
+    // 300 nm) reaches the feature (x = 1.7 µm) until it has left it (2.9 µm).
     let mut estimating_for = 0u64;
     let mut fault_start: Option<u64> = None;
-    let mut fault_end: Option<u64> = None;
-    let mut before = [f64::NAN; 2];
-    let mut history: Vec<(u64, f64, f64)> = Vec::new();
-    let (mut bounded, mut unbounded) = (true, 0u64);
-    let (mut max_force, mut flags) = (0.0f64, 0u32);
     let mut d = plant.measured_deflection_m() as f32;
     let mut rng = 0x9e37_79b9_7f4a_7c15u64 ^ seed;
-    let steps = (if mode == Mode::Dive { 0.21 } else { 1.2 } * fs) as u64;
+    let steps = (if mode == Mode::Dive { 0.25 } else { 1.5 } * fs) as u64;
     for n in 0..steps {
-        // Inject.
         let mut d_in = d;
-        if let Some(s) = fault_start {
+        if let (Some(s), true) = (fault_start, inject) {
             if let Some(v) = corrupt(class, n - s, d, full_scale, &mut rng) {
                 d_in = v;
             }
@@ -184,35 +195,37 @@ pub fn run_fault(class: FaultClass, sample_rate_hz: f64, seed: u64) -> FaultOutc
             && ce >= 0.0
             && ke > 0.0;
         if !ok {
-            bounded = false;
-            unbounded += 1;
+            run.unbounded += 1;
         }
-        max_force = max_force.max(plant.contact_force_n());
+        run.max_force_n = run.max_force_n.max(plant.elastic_force_n());
         if out.status & status::ESTIMATING != 0 {
             estimating_for += 1;
         }
         let x = out.x_m as f64;
+        let phase = ctrl.phase();
         match (mode, fault_start) {
             (Mode::Dive, None) if estimating_for as f64 >= 0.06 * fs => {
                 fault_start = Some(n);
-                fault_end = Some(n + fault_samples(class));
+                run.fault_end = Some(n + fault_samples(class));
             }
-            (Mode::Sve, None) if ctrl.phase() == Phase::Forward && x >= 1.95e-6 => {
-                fault_start = Some(n);
+            (Mode::Sve, None) if phase == Phase::Forward && x >= 1.7e-6 => fault_start = Some(n),
+            (Mode::Sve, Some(_)) if run.fault_end.is_none() && x >= 2.9e-6 => {
+                run.fault_end = Some(n)
             }
-            (Mode::Sve, Some(_)) if fault_end.is_none() && x >= 2.65e-6 => fault_end = Some(n),
             _ => {}
         }
-        if fault_start.is_none() {
-            if out.status & status::ESTIMATING != 0 {
-                before = [ce as f64, ke as f64];
-            }
-        } else {
-            flags |= out.status & 0x00ff_ffff;
-            history.push((n, ce as f64, ke as f64));
-        }
-        if ctrl.phase() == Phase::Done {
+        // The window ends with the tap's dwell or the forward line (the estimates are held,
+        // then reset, after), SVE before the bed's edge at 5 µm where the contact thins out.
+        let window = match mode {
+            Mode::Dive => Phase::Dwell,
+            Mode::Sve => Phase::Forward,
+        };
+        if fault_start.is_some() && (phase != window || x > 4.2e-6) {
             break;
+        }
+        if fault_start.is_some() {
+            run.flags |= out.status & status::FAULTS;
+            run.history.push((n, ce as f64, ke as f64));
         }
         d = (plant.step_nm(
             out.u_m as f64 * 1e9,
@@ -220,31 +233,52 @@ pub fn run_fault(class: FaultClass, sample_rate_hz: f64, seed: u64) -> FaultOutc
             out.y_m as f64 * 1e9,
         ) * 1e-9) as f32;
     }
-    // SVE: the pre-fault estimates are those over the flat bed, which the line returns to.
-    let within = |v: &(u64, f64, f64)| {
-        (v.1 / before[0] - 1.0).abs() <= 0.05 && (v.2 / before[1] - 1.0).abs() <= 0.05
+    run
+}
+
+/// Run one fault class at `sample_rate_hz` and measure it against the same experiment without
+/// the fault (same seed, so the same noise until the fault): recovered when ĉ and k̂ are back
+/// within 5 % of the fault-free run's at the same instant, for good.
+pub fn run_fault(class: FaultClass, sample_rate_hz: f64, seed: u64) -> FaultOutcome {
+    let clean = simulate(class, false, sample_rate_hz, seed);
+    let run = simulate(class, true, sample_rate_hz, seed);
+    let dt = 1.0 / sample_rate_hz;
+    let reference: std::collections::HashMap<u64, (f64, f64)> =
+        clean.history.iter().map(|v| (v.0, (v.1, v.2))).collect();
+    let within = |v: &(u64, f64, f64)| match reference.get(&v.0) {
+        Some(&(c, k)) => (v.1 / c - 1.0).abs() <= 0.05 && (v.2 / k - 1.0).abs() <= 0.05,
+        None => false,
     };
-    let end = fault_end.unwrap_or(u64::MAX);
-    let last_out = history
+    let compared: Vec<&(u64, f64, f64)> = run
+        .history
+        .iter()
+        .filter(|v| reference.contains_key(&v.0))
+        .collect();
+    let end = run.fault_end.unwrap_or(u64::MAX);
+    let last_out = compared
         .iter()
         .rev()
         .find(|v| v.0 >= end && !within(v))
         .map(|v| v.0);
-    let recovery_s = match (fault_end, history.last()) {
+    let recovery_s = match (run.fault_end, compared.last()) {
         (Some(e), Some(last)) if within(last) => {
-            Some(last_out.map_or(0.0, |o| (o + 1 - e) as f64 * dt))
+            Some(last_out.map_or(0.0, |o| (o + 1).saturating_sub(e) as f64 * dt))
         }
         _ => None,
     };
+    let first = compared.first().map(|v| v.0);
+    let before = first
+        .and_then(|n| reference.get(&n))
+        .map_or([f64::NAN; 2], |&(c, k)| [c, k]);
     FaultOutcome {
         class,
-        bounded,
-        unbounded_samples: unbounded,
-        max_force_n: max_force,
-        force_limit_n,
-        flags,
+        bounded: run.unbounded == 0,
+        unbounded_samples: run.unbounded,
+        max_force_n: run.max_force_n,
+        force_limit_n: run.force_limit_n,
+        flags: run.flags,
         recovery_s,
         before,
-        after: history.last().map_or([f64::NAN; 2], |v| [v.1, v.2]),
+        after: compared.last().map_or([f64::NAN; 2], |v| [v.1, v.2]),
     }
 }
