@@ -1170,11 +1170,13 @@ pub fn per_mode(results: &[BenchResult], mode: Mode) -> Option<&BenchResult> {
 pub const GOAL_DIVE: f64 = 150.0;
 /// See [`GOAL_DIVE`].
 pub const GOAL_SVE: f64 = 200.0;
-/// What `firmware-test` allows (the measured figures when last optimised, plus 1 %): more is a
-/// regression and fails the test. Lower them when the loop gets cheaper.
-pub const CEILING_DIVE: f64 = 496.0;
+/// What `firmware-test` allows (the measured figures when last changed, plus 1 %): more is a
+/// regression and fails the test. Lower them when the loop gets cheaper. Raised from 496/559
+/// when the fault handling went in (issue 7: input check with a tip-motion prediction, force
+/// limit, SVE surface check, divergence watch): DIVE 491 → 599, SVE 553 → 686.
+pub const CEILING_DIVE: f64 = 605.0;
 /// See [`CEILING_DIVE`].
-pub const CEILING_SVE: f64 = 559.0;
+pub const CEILING_SVE: f64 = 693.0;
 
 // ---------------------------------------------------------------- report
 
