@@ -44,6 +44,7 @@ pub mod depth;
 pub mod discretize;
 pub mod estimator;
 pub mod excitation;
+pub mod fixed;
 pub mod geometry;
 pub mod guard;
 pub mod observer;
