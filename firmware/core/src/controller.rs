@@ -773,6 +773,16 @@ impl<T: SineTable> Controller<T> {
         }
     }
 
+    /// U for the next period in internal units (nm).
+    pub fn u_internal(&self) -> T {
+        self.u
+    }
+
+    /// The lateral setpoints in internal units (nm).
+    pub fn xy_internal(&self) -> (T, T) {
+        (self.x, self.y)
+    }
+
     /// The finished tap or pixel, if one is waiting (status bit RECORD_READY).
     pub fn take_record(&mut self) -> Option<Record<T>> {
         self.record.take()
@@ -780,37 +790,34 @@ impl<T: SineTable> Controller<T> {
 
     /// The current estimate in SI: aggregate ĉ (N·s/m), k̂ (N/m), and the bed height ĥ (m)
     /// where the mode identifies it (SVE and DIVE offset), else the contact height.
+    #[inline(always)]
     pub fn estimates(&self) -> (T, T, T) {
+        let (c, k, h) = self.estimates_internal();
+        (c * self.p.damping_to_si, k, h * self.p.to_m)
+    }
+
+    /// [`Self::estimates`] in the core's internal units ([`crate::units`]: ĉ in nN·µs/nm, k̂ in
+    /// nN/nm = N/m, ĥ in nm): what a fixed-point caller reads, as no Q format holds the SI
+    /// factors.
+    pub fn estimates_internal(&self) -> (T, T, T) {
         let p = &self.p;
         match self.mode {
             Some(Mode::Dive) if p.dive.regressor == DiveRegressor::Paper => {
                 let th = self.est2.theta();
-                (th[0] * p.damping_to_si, th[1], self.dive.h * p.to_m)
+                (th[0], th[1], self.dive.h)
             }
             Some(Mode::Dive) => {
                 let th = self.est3.theta();
-                (
-                    th[0] * p.damping_to_si,
-                    th[1],
-                    (self.dive.z0 + th[2] / th[1]) * p.to_m,
-                )
+                (th[0], th[1], (self.dive.z0 + th[2] / th[1]))
             }
             Some(Mode::Sve) | None if p.sve.regressor == SveRegressor::Decoupled => {
                 let th = self.est2.theta();
                 let force = p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
-                (
-                    th[0] * p.damping_to_si,
-                    th[1],
-                    (self.reg.z().x + force / th[1]) * p.to_m,
-                )
+                (th[0], th[1], (self.reg.z().x + force / th[1]))
             }
             _ => {
                 let th = self.est3.theta();
-                (
-                    th[0] * p.damping_to_si,
-                    th[1],
-                    (self.sve.z0 + th[2] / th[1]) * p.to_m,
-                )
+                (th[0], th[1], (self.sve.z0 + th[2] / th[1]))
             }
         }
     }
@@ -833,6 +840,15 @@ impl<T: SineTable> Controller<T> {
     /// One loop sample: the measured deflection `d_m` (m) in, the next outputs out.
     #[inline(always)]
     pub fn step(&mut self, d_m: T) -> StepOut<T> {
+        self.step_internal(d_m * self.p.to_internal)
+    }
+
+    /// [`Self::step`] with the deflection in the core's internal length unit (nm): the entry
+    /// point of the fixed-point path (see [`crate::fixed`]), which cannot hold the SI factor
+    /// 10⁹. U, X and Y in internal units are [`Self::u_internal`] and [`Self::xy_internal`]
+    /// (or the DAC codes of [`StepOut`]).
+    #[inline(always)]
+    pub fn step_internal(&mut self, d_nm: T) -> StepOut<T> {
         self.samples += 1;
         let mut st = 0u32;
         // Input: out-of-range, non-finite and spiking readings are replaced by the last good
@@ -841,9 +857,7 @@ impl<T: SineTable> Controller<T> {
             Some(Mode::Sve) => (&self.p.guard_sve, self.p.dec_sve),
             _ => (&self.p.guard_dive, self.p.dec_dive),
         };
-        let input = self
-            .guard
-            .input(gp, d_m * self.p.to_internal, self.u, self.p.d_max, &BITS);
+        let input = self.guard.input(gp, d_nm, self.u, self.p.d_max, &BITS);
         st |= input.flags;
         let d = input.d;
         let input_ok = input.ok;

@@ -6,13 +6,14 @@
 //! second copy. They are for boards without an FPU and for results that are bit-exact by
 //! construction on every target.
 //!
-//! **Status (issue 8, not done):** the arithmetic is here and tested; the loop does not yet run
-//! in fixed point. `Controller::step` takes and returns SI values (metres) and converts with
-//! factors of 10⁹ and 10⁻⁹, which no single Q format holds both of with the precision needed
-//! (Q31.32 stores 10⁻⁹ as 4 LSB, a 7 % error). Measured in closed loop on the cell phantom
-//! (3 × 3 DIVE taps) with the SI interface: Q32 against f64 off by 79 % (c), 869 % (k) and
-//! 158 % (h) of each maximum, where f32 is within 0.012 %. The next step is a `step` in
-//! internal units (or ADC/DAC codes) for the fixed-point path, with SI conversions at the edge.
+//! **The entry point.** `Controller::step` takes and returns SI values (metres), converting
+//! with factors of 10⁹ and 10⁻⁹ that no single Q format holds both of (Q31.32 stores 10⁻⁹ as
+//! 4 LSB, a 7 % error: through `step`, Q32 was off by 79–869 % of each maximum). The
+//! fixed-point path uses `Controller::step_internal` (D in nm), `u_internal`/`xy_internal` (or
+//! the DAC codes) and `estimates_internal`, with SI conversions at the edge. Measured in closed
+//! loop on the cell phantom (`host-sim/tests/fixed_point.rs`): Q32 within 0.06 % (DIVE) and
+//! 0.26 % (SVE) of each property's maximum of the f64 reference, both estimators; Q24 within
+//! 0.1 % (DIVE) but 6 % (SVE); Q16 off by 7–118 %.
 //!
 //! * [`Q32`]: Q31.32 in an `i64` (range ±2.1×10⁹, resolution 2.3×10⁻¹⁰). In the core's
 //!   internal units (nm, nN, µs) positions, forces and parameters sit far inside the range and

@@ -72,3 +72,40 @@ proptest! {
         }
     }
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(32))]
+
+    /// The fixed-point core (Q31.32) through its internal-unit entry point: no overflow panic
+    /// (the tests run with overflow checks), U on the DAC grid, estimates in their boxes, for
+    /// any input — including the extremes of the format.
+    #[test]
+    fn fixed_point_step_stays_in_range_for_any_input(
+        data in proptest::collection::vec(prop_oneof![
+            4 => (-3000i64..3000).prop_map(|v| visco_core::fixed::Q32(v << 32)),
+            2 => any::<i64>().prop_map(visco_core::fixed::Q32),
+            1 => Just(visco_core::fixed::Q32(i64::MAX)),
+            1 => Just(visco_core::fixed::Q32(i64::MIN)),
+        ], 1..20_000),
+        mode in prop_oneof![Just(Mode::Dive), Just(Mode::Sve)],
+    ) {
+        use visco_core::fixed::Q32;
+        use visco_core::Real;
+        let cfg = short_config(1e6);
+        let mut ctrl = Controller::<Q32>::new(&cfg).unwrap();
+        ctrl.command(Command::Start(mode));
+        let (umin, umax) = (cfg.limits.u_min_m * 1e9, cfg.limits.u_max_m * 1e9);
+        let cmax = cfg.dive.estimator.c_max_ns_per_m.max(cfg.sve.estimator.c_max_ns_per_m)
+            / visco_core::units::DAMPING;
+        for d in data {
+            let out = ctrl.step_internal(d);
+            let u = ctrl.u_internal().to_f64();
+            prop_assert!(u >= umin - 1.0 && u <= umax + 1.0, "u = {u} nm");
+            prop_assert!(out.u_code >= -32768 && out.u_code <= 32767);
+            let (c, k, _) = ctrl.estimates_internal();
+            prop_assert!(c >= Q32::ZERO && c.to_f64() <= cmax * 1.0001, "c = {}", c.to_f64());
+            prop_assert!(k > Q32::ZERO);
+            ctrl.take_record();
+        }
+    }
+}
