@@ -2,6 +2,7 @@
 //! [`firmware_tests`].
 
 pub mod firmware;
+pub mod fuzz;
 pub mod suite;
 /// The host end of the firmware link (`visco::telemetry`).
 pub use visco::telemetry;

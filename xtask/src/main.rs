@@ -33,7 +33,10 @@ fn usage() -> &'static str {
                                 dive-readout, sve-scan
   core-digest                   CRC-32 of every output of closed-loop runs of the host core
                                 (equal before and after a core change: bit-identical results)
-  defmt ELF STREAM              decode a defmt stream (e.g. QEMU semihosting output)"
+  defmt ELF STREAM              decode a defmt stream (e.g. QEMU semihosting output)
+  fuzz [--seconds N] [--target T]
+                                every host parser under libFuzzer (cargo-fuzz, nightly; installs
+                                cargo-fuzz), seeded with the real recordings; N s per target"
 }
 
 fn arg_value(args: &[String], name: &str) -> Option<String> {
@@ -148,6 +151,11 @@ fn main() -> ExitCode {
             // Placeholder until the workspace's own `test` task lands: the host tests of the
             // default members, then the firmware tests.
             "test" => xtask::suite::run_all(),
+            "fuzz" => xtask::fuzz::run(
+                num(rest, "--seconds", 60u64)?,
+                arg_value(rest, "--target").as_deref(),
+            )
+            .map(|_| ()),
             "link-throughput" => firmware::link_throughput(),
             "lockstep" => firmware::lockstep().map(|_| ()),
             "core-digest" => firmware::core_digest(),
