@@ -10,7 +10,7 @@ use visco::plant::Plant;
 use visco::sample::Sample;
 use visco_core::excitation::SineTable;
 use visco_core::fixed::{Q16, Q24, Q32};
-use visco_core::{Command, Controller, EstimatorKind, Mode, Real};
+use visco_core::{Command, Controller, EstimatorKind, Mode};
 
 /// (c, k, h) in internal units at every record (tap or pixel).
 fn run<T: SineTable>(mode: Mode, kind: EstimatorKind) -> Vec<[f64; 3]> {
