@@ -2,6 +2,7 @@
 // `!(x > 0.0)` is true for NaN as well, which is the point wherever it is written.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod diagnose;
 pub mod experiment;
 pub mod identify;
 pub mod output;

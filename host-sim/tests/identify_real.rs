@@ -8,32 +8,14 @@
 
 mod identify_support;
 
-use identify_support::real;
+use identify_support::{real, CC, MAP, NTMDT, SPOT3, SR, WORKSHOP};
 use visco::identify::force_curve::ForceCurveFit;
 use visco::identify::{identify, Json, Options, Outcome};
 use visco::recording::import::{import_all, ImportOptions};
 use visco::recording::Recording;
 
-const SPOT3: &str = "fmt-jpk-fd_spot3-0192.jpk-force";
-const SR: &str = "fmt-jpk-sr_cell1-0008.jpk-force";
-const CC: &str = "fmt-jpk-cc_pr14-polymergel-2021.06.30.jpk-force";
-const MAP: &str = "fmt-jpk-fd_map2x2_extracted.jpk-force-map";
-const WORKSHOP: &str = "fmt-afm-workshop-fd_single_2021-10-22_14.16.csv";
-const NTMDT: &str = "fmt-ntmdt-txt-fd_2015_01_17_gel4-0,1_mQ_adh_6B_Curve_DFL_Height_51.txt";
-
 fn options_for(name: &str) -> ImportOptions {
-    let mut o = ImportOptions {
-        tip_radius_m: Some(5e-6),
-        ..ImportOptions::default()
-    };
-    if name == WORKSHOP || name == NTMDT {
-        o.spring_constant_n_per_m = Some(0.1);
-        o.sample_rate_hz = Some(1000.0);
-    }
-    if name == NTMDT {
-        o.sensitivity_m_per_unit = Some(5e-8);
-    }
-    o
+    identify_support::real_import_options(name)
 }
 
 /// Imports, writes, reads back and identifies every curve of a file.

@@ -192,13 +192,13 @@ impl Effect for Probe {
     fn name(&self) -> &str {
         "probe"
     }
-    fn tip_force_nn(&mut self, _ctx: &EffectContext) -> f64 {
+    fn tip_force_nn(&self, _ctx: &EffectContext) -> f64 {
         self.force_nn
     }
     fn linear_terms(&self) -> (f64, f64) {
         (0.0, self.drag)
     }
-    fn measured_deflection_nm(&mut self, _ctx: &EffectContext, d_nm: f64) -> f64 {
+    fn measured_deflection_nm(&self, _ctx: &EffectContext, d_nm: f64) -> f64 {
         d_nm + self.offset_nm
     }
     fn end_of_step(&mut self, _ctx: &EffectContext) {

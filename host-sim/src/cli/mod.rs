@@ -6,7 +6,9 @@
 //! single line `error: ...` on stderr with a non-zero exit status; library errors such as
 //! `RecordingError` already read `FILE:LINE: reason (fix: ...)`.
 
+mod concealed;
 mod demo;
+mod diagnose;
 mod faults;
 mod identify;
 mod import;
@@ -39,6 +41,12 @@ enum Command {
     Import(import::ImportArgs),
     /// Identify a recording's viscoelastic parameters (dive, sve, force-curve) and its fit.
     Identify(identify::IdentifyArgs),
+    /// The concealed-effect suite: every effect at 3–10× the noise, diagnosed; the confusion
+    /// matrix.
+    Concealed(concealed::ConcealedArgs),
+    /// Find the physics the nominal model left out of a recording, model it, show the fit
+    /// improve.
+    Diagnose(diagnose::DiagnoseArgs),
     /// Replay a recording's deflection through the firmware under QEMU, bit for bit against
     /// the host build of the core.
     Replay(replay::ReplayArgs),
@@ -53,6 +61,8 @@ pub fn run() -> ExitCode {
         Command::Faults(args) => faults::run(args),
         Command::Import(args) => import::run(args),
         Command::Identify(args) => identify::run(args),
+        Command::Diagnose(args) => diagnose::run(args),
+        Command::Concealed(args) => concealed::run(args),
         Command::Sweep(args) => sweep::run(args),
         Command::Replay(args) => replay::run(args),
     };

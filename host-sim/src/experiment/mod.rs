@@ -30,6 +30,7 @@
 //! On steep topography the flat-surface n and s̄ are wrong (Appendix B); see
 //! [`metrics::steep_slope`] for where that starts.
 
+pub mod concealed;
 pub mod demo;
 pub mod excitation_study;
 pub mod faults;

@@ -14,6 +14,63 @@ use crate::recording::format_f64;
 
 static COUNTER: AtomicU64 = AtomicU64::new(0);
 
+/// Where a report and its companion files go: `--out DIR`, else the report's directory; and
+/// the stem the companions are named after. Refuses a report without a file name, an output
+/// that would overwrite the input, and a report whose directory does not exist (a typo should
+/// fail, not grow a tree).
+pub fn plan_outputs(
+    json: &Path,
+    out_dir: Option<&Path>,
+    input: &Path,
+) -> Result<(PathBuf, String)> {
+    let dir = match out_dir {
+        Some(d) => d.to_path_buf(),
+        None => match json.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        },
+    };
+    let stem = json
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .filter(|s| !s.is_empty())
+        .ok_or_else(|| IdentifyError::new(json, "the report needs a file name"))?;
+    for out in [json, dir.as_path()] {
+        if same_file(out, input) {
+            return Err(IdentifyError::new(
+                out,
+                "the output would overwrite the recording",
+            ));
+        }
+    }
+    if let Some(parent) = json.parent().filter(|p| !p.as_os_str().is_empty()) {
+        if !parent.is_dir() {
+            return Err(
+                IdentifyError::new(json, "the report's directory does not exist")
+                    .with_fix(format!("create {} first", parent.display())),
+            );
+        }
+    }
+    Ok((dir, stem))
+}
+
+/// Creates `dir` when missing; whether it did (so that a failure can remove it again).
+pub fn create_missing_dir(dir: &Path) -> Result<bool> {
+    if dir.exists() {
+        return Ok(false);
+    }
+    fs::create_dir(dir)
+        .map_err(|e| IdentifyError::io(dir, "cannot create the output directory", &e))?;
+    Ok(true)
+}
+
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
+}
+
 /// Files written under temporary names, renamed together.
 #[derive(Debug, Default)]
 pub struct Staged {

@@ -48,7 +48,7 @@ use std::path::Path;
 
 use super::error::{IdentifyError, Result};
 use super::json::Json;
-use super::signal::{cap_volume, contact_area, moving_average, robust_sigma, FohLowPass};
+use super::signal::{cap_volume, contact_area, minimize, moving_average, robust_sigma, FohLowPass};
 use super::Options;
 use crate::recording::Recording;
 
@@ -542,26 +542,7 @@ fn regress(
     if !(s11 > 0.0) {
         return (0.0, 0.0, syy);
     }
-    // Solve with both columns scaled to unit norm; c_a ≥ 0 (projection onto the face).
-    let (n1, n2) = (s11.sqrt(), s22.sqrt().max(f64::MIN_POSITIVE));
-    let (a11, a12, a22) = (1.0, s12 / (n1 * n2), s22 / (n2 * n2));
-    let (b1, b2) = (s1y / n1, s2y / n2);
-    let det = a11 * a22 - a12 * a12;
-    let (mut ka, mut ca) = if det > 1e-12 {
-        (
-            (a22 * b1 - a12 * b2) / det / n1,
-            (a11 * b2 - a12 * b1) / det / n2,
-        )
-    } else {
-        (b1 / n1, 0.0)
-    };
-    if ca < 0.0 {
-        ca = 0.0;
-        ka = s1y / s11;
-    }
-    let rss =
-        syy - 2.0 * (ka * s1y + ca * s2y) + ka * ka * s11 + 2.0 * ka * ca * s12 + ca * ca * s22;
-    (ka, ca, rss.max(0.0))
+    super::signal::two_column_nonneg(s11, s12, s22, s1y, s2y, syy)
 }
 
 /// The quasi-static law driven by U: D per row (m).
@@ -881,46 +862,6 @@ impl ForceCurveFit {
             s.push('\n');
         }
         s
-    }
-}
-
-/// Minimum of `f` on `[lo, hi]`: a grid of `grid` intervals, then golden section around the
-/// best grid point.
-fn minimize(f: impl Fn(f64) -> f64, lo: f64, hi: f64, grid: usize) -> f64 {
-    let xs: Vec<f64> = (0..=grid)
-        .map(|j| lo + (hi - lo) * j as f64 / grid as f64)
-        .collect();
-    let mut best = (f64::INFINITY, 0usize);
-    for (j, &x) in xs.iter().enumerate() {
-        let v = f(x);
-        if v < best.0 {
-            best = (v, j);
-        }
-    }
-    let (mut a, mut b) = (xs[best.1.saturating_sub(1)], xs[(best.1 + 1).min(grid)]);
-    let g = (5f64.sqrt() - 1.0) / 2.0;
-    let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
-    let (mut f1, mut f2) = (f(x1), f(x2));
-    for _ in 0..40 {
-        if f1 < f2 {
-            b = x2;
-            x2 = x1;
-            f2 = f1;
-            x1 = b - g * (b - a);
-            f1 = f(x1);
-        } else {
-            a = x1;
-            x1 = x2;
-            f1 = f2;
-            x2 = a + g * (b - a);
-            f2 = f(x2);
-        }
-    }
-    let x = 0.5 * (a + b);
-    if f(x) <= best.0 {
-        x
-    } else {
-        xs[best.1]
     }
 }
 

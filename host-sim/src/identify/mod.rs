@@ -158,44 +158,9 @@ impl Outputs {
 pub fn identify(path: &Path, opts: &Options) -> Result<Report> {
     opts.check()?;
     let header = RecordingReader::open(path)?.header().clone();
-    let dir = match &opts.out_dir {
-        Some(d) => d.clone(),
-        None => match opts.json.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        },
-    };
-    let stem = opts
-        .json
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .filter(|s| !s.is_empty())
-        .ok_or_else(|| IdentifyError::new(&opts.json, "the report needs a file name"))?;
-    for out in [&opts.json, &dir] {
-        if same_file(out, path) {
-            return Err(IdentifyError::new(
-                out,
-                "the output would overwrite the recording",
-            ));
-        }
-    }
-    // The report's directory must exist (a typo should fail, not grow a tree); `--out DIR`
-    // is created when missing, and removed again if nothing could be written.
-    if let Some(parent) = opts.json.parent().filter(|p| !p.as_os_str().is_empty()) {
-        if !parent.is_dir() {
-            return Err(
-                IdentifyError::new(&opts.json, "the report's directory does not exist")
-                    .with_fix(format!("create {} first", parent.display())),
-            );
-        }
-    }
-    let created = if dir.exists() {
-        false
-    } else {
-        std::fs::create_dir(&dir)
-            .map_err(|e| IdentifyError::io(&dir, "cannot create the output directory", &e))?;
-        true
-    };
+    // `--out DIR` is created when missing, and removed again if nothing could be written.
+    let (dir, stem) = files::plan_outputs(&opts.json, opts.out_dir.as_deref(), path)?;
+    let created = files::create_missing_dir(&dir)?;
     let result = run(
         path,
         &header.meta,
@@ -307,13 +272,6 @@ fn run(path: &Path, meta: &Metadata, opts: &Options, out: Outputs) -> Result<Rep
         rms_misfit_m: rms,
         outcome,
     })
-}
-
-fn same_file(a: &Path, b: &Path) -> bool {
-    match (a.canonicalize(), b.canonicalize()) {
-        (Ok(x), Ok(y)) => x == y,
-        _ => false,
-    }
 }
 
 /// The unit suffixes of the report's keys.

@@ -67,6 +67,80 @@ pub fn moving_average(v: &[f64], half: usize) -> Vec<f64> {
         .collect()
 }
 
+/// Minimum of `f` on `[lo, hi]`: a grid of `grid` intervals, then golden section around the
+/// best grid point (robust to a few local minima, exact to ~1e-9 of the bracket).
+pub fn minimize(f: impl Fn(f64) -> f64, lo: f64, hi: f64, grid: usize) -> f64 {
+    let xs: Vec<f64> = (0..=grid)
+        .map(|j| lo + (hi - lo) * j as f64 / grid as f64)
+        .collect();
+    let mut best = (f64::INFINITY, 0usize);
+    for (j, &x) in xs.iter().enumerate() {
+        let v = f(x);
+        if v < best.0 {
+            best = (v, j);
+        }
+    }
+    let (mut a, mut b) = (xs[best.1.saturating_sub(1)], xs[(best.1 + 1).min(grid)]);
+    let g = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
+    let (mut f1, mut f2) = (f(x1), f(x2));
+    for _ in 0..40 {
+        if f1 < f2 {
+            b = x2;
+            x2 = x1;
+            f2 = f1;
+            x1 = b - g * (b - a);
+            f1 = f(x1);
+        } else {
+            a = x1;
+            x1 = x2;
+            f1 = f2;
+            x2 = a + g * (b - a);
+            f2 = f(x2);
+        }
+    }
+    let x = 0.5 * (a + b);
+    if f(x) <= best.0 {
+        x
+    } else {
+        xs[best.1]
+    }
+}
+
+/// Least squares of `y = a·x₁ + b·x₂` with `b ≥ 0`, from the normal-equation sums
+/// (Σx₁², Σx₁x₂, Σx₂², Σx₁y, Σx₂y, Σy²), solved with both columns scaled to unit norm and
+/// projected onto `b = 0` when it would be negative: (a, b, residual sum of squares).
+pub fn two_column_nonneg(
+    s11: f64,
+    s12: f64,
+    s22: f64,
+    s1y: f64,
+    s2y: f64,
+    syy: f64,
+) -> (f64, f64, f64) {
+    if !(s11 > 0.0) {
+        return (0.0, 0.0, syy);
+    }
+    let (n1, n2) = (s11.sqrt(), s22.sqrt().max(f64::MIN_POSITIVE));
+    let (a11, a12, a22) = (1.0, s12 / (n1 * n2), s22 / (n2 * n2));
+    let (b1, b2) = (s1y / n1, s2y / n2);
+    let det = a11 * a22 - a12 * a12;
+    let (mut a, mut b) = if det > 1e-12 {
+        (
+            (a22 * b1 - a12 * b2) / det / n1,
+            (a11 * b2 - a12 * b1) / det / n2,
+        )
+    } else {
+        (b1 / n1, 0.0)
+    };
+    if b < 0.0 {
+        b = 0.0;
+        a = s1y / s11;
+    }
+    let rss = syy - 2.0 * (a * s1y + b * s2y) + a * a * s11 + 2.0 * a * b * s12 + b * b * s22;
+    (a, b, rss.max(0.0))
+}
+
 /// Median of a copy of `v` (NaN-free input).
 pub fn median(v: &[f64]) -> f64 {
     if v.is_empty() {

@@ -118,7 +118,7 @@ pub mod linear;
 pub mod rng;
 
 pub use config::{Cantilever, Converter, PlantConfig, Travel, BOLTZMANN_J_PER_K};
-pub use effects::{Effect, EffectContext};
+pub use effects::{Effect, EffectContext, EffectKind, EffectSpec};
 
 use crate::sample::Sample;
 use contact::{Footprint, SampleNm};
@@ -550,12 +550,13 @@ impl Plant {
         }
         let mut f_extra = 0.0;
         let has_effects = !self.effects.is_empty();
+        let u_cmd = u;
         if has_effects {
-            let ctx = self.context(u);
-            for e in &mut self.effects {
+            let ctx = self.context(u_cmd);
+            for e in &self.effects {
                 u = e.piezo_z_nm(&ctx, u);
             }
-            for e in &mut self.effects {
+            for e in &self.effects {
                 f_extra += e.tip_force_nn(&ctx);
             }
         }
@@ -577,8 +578,8 @@ impl Plant {
         self.d_true = self.u - self.z;
         let mut d = self.d_true;
         if has_effects {
-            let ctx = self.context(self.u);
-            for e in &mut self.effects {
+            let ctx = self.context(u_cmd);
+            for e in &self.effects {
                 d = e.measured_deflection_nm(&ctx, d);
             }
             for e in &mut self.effects {
@@ -620,17 +621,26 @@ impl Plant {
         self.step_nm(u, x, y)
     }
 
-    fn context(&self, u: f64) -> EffectContext {
+    /// What the effects see: `u_cmd` is the commanded U of the period (after the DAC and the
+    /// travel clamp, before the effects' piezo hooks).
+    fn context(&self, u_cmd: f64) -> EffectContext {
+        let n = self.n;
         EffectContext {
             time_us: self.time_us(),
             dt_us: self.h,
             z_nm: self.z,
             z_dot_nm_per_us: self.v,
-            u_nm: u,
+            u_nm: u_cmd,
             x_nm: self.x,
             y_nm: self.y,
             contact_force_nn: self.contact_force_nn(),
-            active_elements: self.n,
+            elastic_force_nn: self.fp.s_kt[n] - self.fp.s_k[n] * self.z,
+            depth_nm: if self.fp.len > 0 {
+                self.fp.t[0] - self.z
+            } else {
+                f64::NEG_INFINITY
+            },
+            active_elements: n,
         }
     }
 

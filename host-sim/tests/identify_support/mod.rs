@@ -1,5 +1,6 @@
-//! Helpers shared by the `identify_*` integration tests: simulated recordings from the plant
-//! with the controller in the loop, and the real files.
+//! Helpers shared by the `identify_*` and `diagnose_*` integration tests: simulated recordings
+//! from the plant with the controller in the loop, the real files and the values a user
+//! supplies with them, and running the `visco` command.
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
@@ -122,4 +123,58 @@ pub fn real(name: &str) -> PathBuf {
         }
     }
     panic!("real data file {name} not found in {candidates:?}; set VISCO_SHARED_DIR");
+}
+
+/// The real files.
+pub const SPOT3: &str = "fmt-jpk-fd_spot3-0192.jpk-force";
+pub const SR: &str = "fmt-jpk-sr_cell1-0008.jpk-force";
+pub const CC: &str = "fmt-jpk-cc_pr14-polymergel-2021.06.30.jpk-force";
+pub const MAP: &str = "fmt-jpk-fd_map2x2_extracted.jpk-force-map";
+pub const WORKSHOP: &str = "fmt-afm-workshop-fd_single_2021-10-22_14.16.csv";
+pub const NTMDT: &str = "fmt-ntmdt-txt-fd_2015_01_17_gel4-0,1_mQ_adh_6B_Curve_DFL_Height_51.txt";
+
+/// What a user supplies with each real file: the tip radius 5 µm for all (colloidal probes
+/// for cells; no vendor stores it); AFM Workshop: 0.1 N/m, 1 kHz; NT-MDT: 0.1 N/m,
+/// 50 nm/nA, 1 kHz. JPK files carry their own spring constant, sensitivity and rates.
+pub fn real_import_options(name: &str) -> visco::recording::import::ImportOptions {
+    let mut o = visco::recording::import::ImportOptions {
+        tip_radius_m: Some(5e-6),
+        ..Default::default()
+    };
+    if name == WORKSHOP || name == NTMDT {
+        o.spring_constant_n_per_m = Some(0.1);
+        o.sample_rate_hz = Some(1000.0);
+    }
+    if name == NTMDT {
+        o.sensitivity_m_per_unit = Some(5e-8);
+    }
+    o
+}
+
+/// Runs the `visco` command.
+pub fn visco(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_visco"))
+        .args(args)
+        .output()
+        .expect("run visco")
+}
+
+/// Output bytes as text.
+pub fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// A path as `&str`.
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// The names in a directory, sorted.
+pub fn listing(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    v.sort();
+    v
 }

@@ -1,0 +1,683 @@
+//! Where the nominal model's misfit sits, tested.
+//!
+//! Every test works on the held-out samples' residual whitened by the nominal model's noise
+//! model ([`super::noise`]), where the nominal model predicts independent N(0, σ²) samples;
+//! all p-values of one recording form one family, corrected by Holm's step-down method at
+//! the diagnosis's α:
+//!
+//! | group | test | statistic |
+//! | --- | --- | --- |
+//! | phase | a mean offset in each phase (approach, contact, dwell, retract, free) | z = Σε/(σ√n), two-sided |
+//! | phase | excess variance in each phase | χ² = Σε²/σ², n dof |
+//! | state | a mean offset in each quarter of the contact depth, and loading against unloading | z |
+//! | frequency | power at the excitation tones, their harmonics and intermodulation, f₀, and the strongest line between 4 and 9 f₀ | periodogram / local floor, χ²(2·segments) |
+//! | whiteness | Ljung–Box on the whitened residual, 20 lags | χ²(20) |
+//! | input | cross-correlation of the whitened residual with the input's increments, lags 0–20 | χ²(21) |
+//! | time | CUSUM of the whitened residual | sup of a Brownian motion, `P ≤ 4·Φ̄(c)` |
+//! | map | excess variance per tap (recordings of several taps with X, Y) | χ², n dof |
+//!
+//! Phases come from the fitted nominal model (in contact or not) and the slow motion of the
+//! base (U smoothed over the excitation): `approach` (moving towards the sample, free),
+//! `contact` (moving in, loading), `dwell` (U at rest in contact), `retract` (moving away),
+//! `free` (at rest out of contact).
+
+use super::model::Trace;
+use super::noise::{chi2_sf, normal_sf, NoiseModel};
+use super::problem::Problem;
+use super::spectrum::Spectrum;
+use crate::identify::json::Json;
+use crate::identify::signal::moving_average;
+use visco_core::units::{LENGTH, TIME};
+
+/// What the instrument is doing at a sample.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Phase {
+    Approach,
+    Contact,
+    Dwell,
+    Retract,
+    Free,
+}
+
+impl Phase {
+    pub const ALL: [Phase; 5] = [
+        Phase::Approach,
+        Phase::Contact,
+        Phase::Dwell,
+        Phase::Retract,
+        Phase::Free,
+    ];
+    /// The report's word.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Phase::Approach => "approach",
+            Phase::Contact => "contact",
+            Phase::Dwell => "dwell",
+            Phase::Retract => "retract",
+            Phase::Free => "free",
+        }
+    }
+}
+
+/// Each sample's phase (module docs), runs shorter than the smoothing merged into their
+/// neighbours.
+pub fn phases(p: &Problem, trace: &Trace) -> Vec<Phase> {
+    let d = &p.data;
+    let n = d.len();
+    let w = p.smoothing_half_width();
+    let us = moving_average(&d.u, w);
+    let v: Vec<f64> = (0..n)
+        .map(|i| {
+            let (a, b) = (i.saturating_sub(1), (i + 1).min(n - 1));
+            if b > a {
+                (us[b] - us[a]) / (d.t[b] - d.t[a])
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let vmax = v.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+    let th = 0.05 * vmax;
+    let mut out: Vec<Phase> = (0..n)
+        .map(|i| {
+            let contact = trace.depth[i] > 0.0;
+            if vmax == 0.0 || v[i].abs() <= th {
+                if contact {
+                    Phase::Dwell
+                } else {
+                    Phase::Free
+                }
+            } else if v[i] < 0.0 {
+                if contact {
+                    Phase::Contact
+                } else {
+                    Phase::Approach
+                }
+            } else {
+                Phase::Retract
+            }
+        })
+        .collect();
+    // Merge short runs into the previous one.
+    let min_run = w.max(2);
+    let mut i = 0;
+    while i < n {
+        let mut j = i;
+        while j < n && out[j] == out[i] {
+            j += 1;
+        }
+        if j - i < min_run && i > 0 {
+            let prev = out[i - 1];
+            for x in &mut out[i..j] {
+                *x = prev;
+            }
+        }
+        i = j;
+    }
+    out
+}
+
+/// A time span where something sits.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Span {
+    /// Rows, 0-based half-open.
+    pub rows: (usize, usize),
+    pub t_start_s: f64,
+    pub t_end_s: f64,
+    pub phase: Phase,
+    /// Lateral position (m), when the recording has one.
+    pub xy_m: Option<(f64, f64)>,
+    /// Share of the contribution's energy (∫c² dt) in the span.
+    pub share: f64,
+}
+
+impl Span {
+    pub fn to_json(&self) -> Json {
+        let mut j = Json::obj()
+            .with("t_start_s", self.t_start_s)
+            .with("t_end_s", self.t_end_s)
+            .with("phase", self.phase.as_str())
+            .with("rows", vec![self.rows.0 as f64 + 1.0, self.rows.1 as f64])
+            .with("share", self.share);
+        if let Some((x, y)) = self.xy_m {
+            j.set("x_m", x);
+            j.set("y_m", y);
+        }
+        j
+    }
+}
+
+/// Where a contribution `c` (nm, per sample) matters: runs of one phase where |c| is above a
+/// fifth of its peak and above the noise, gaps shorter than the smoothing closed, at most
+/// `max` spans (the largest by energy), in time order.
+pub fn spans(p: &Problem, phase: &[Phase], c: &[f64], noise_nm: f64, max: usize) -> Vec<Span> {
+    let n = c.len();
+    let peak = c.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+    if !(peak > 0.0) {
+        return Vec::new();
+    }
+    let th = (0.2 * peak).max(noise_nm.min(0.5 * peak));
+    let mut mask: Vec<bool> = c.iter().map(|x| x.abs() >= th).collect();
+    let gap = p.smoothing_half_width().max(2);
+    // Close short gaps.
+    let mut last: Option<usize> = None;
+    for i in 0..n {
+        if mask[i] {
+            if let Some(l) = last {
+                if i - l > 1 && i - l <= gap {
+                    for x in &mut mask[l + 1..i] {
+                        *x = true;
+                    }
+                }
+            }
+            last = Some(i);
+        }
+    }
+    // Energies weighted by time: a recording may sample its holds slower than its ramps.
+    let t = &p.data.t;
+    let w = |i: usize| {
+        let a = i.saturating_sub(1);
+        let b = (i + 1).min(n - 1);
+        if b > a {
+            0.5 * (t[b] - t[a])
+        } else {
+            1.0
+        }
+    };
+    let total: f64 = (0..n).map(|i| c[i] * c[i] * w(i)).sum();
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < n {
+        if !mask[i] {
+            i += 1;
+            continue;
+        }
+        let ph = phase[i];
+        let mut j = i;
+        while j < n && mask[j] && phase[j] == ph {
+            j += 1;
+        }
+        let e: f64 = (i..j).map(|k| c[k] * c[k] * w(k)).sum();
+        let unit = p.data.unit[i];
+        out.push(Span {
+            rows: (i, j),
+            t_start_s: p.data.t[i] * TIME,
+            t_end_s: p.data.t[j - 1] * TIME,
+            phase: ph,
+            xy_m: p.unit_xy_m.get(unit).copied().flatten(),
+            share: if total > 0.0 { e / total } else { 0.0 },
+        });
+        i = j;
+    }
+    out.sort_by(|a, b| b.share.total_cmp(&a.share));
+    // The pieces that carry something, and at least the largest three.
+    let keep = out.iter().filter(|s| s.share >= 0.02).count().max(3);
+    out.truncate(keep.min(max));
+    out.sort_by_key(|s| s.rows.0);
+    out
+}
+
+/// One test of the locate step.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Test {
+    pub group: &'static str,
+    pub name: String,
+    pub statistic: &'static str,
+    pub value: f64,
+    pub p_value: f64,
+    /// Holm-adjusted p-value.
+    pub p_adjusted: f64,
+    pub significant: bool,
+    /// What it measured, in words and numbers.
+    pub detail: String,
+    /// Where (when it is a place).
+    pub span: Option<(f64, f64)>,
+    /// The frequency tested (Hz), for the frequency group.
+    pub freq_hz: Option<f64>,
+}
+
+impl Test {
+    pub fn to_json(&self) -> Json {
+        let mut j = Json::obj()
+            .with("group", self.group)
+            .with("test", self.name.as_str())
+            .with("statistic", self.statistic)
+            .with("value", self.value)
+            .with("p_value", self.p_value)
+            .with("p_adjusted", self.p_adjusted)
+            .with("significant", self.significant)
+            .with("detail", self.detail.as_str());
+        if let Some((a, b)) = self.span {
+            j.set("t_start_s", a);
+            j.set("t_end_s", b);
+        }
+        if let Some(f) = self.freq_hz {
+            j.set("f_hz", f);
+        }
+        j
+    }
+}
+
+/// Per-phase misfit of a model, for the report.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PhaseMisfit {
+    pub phase: Phase,
+    pub samples: usize,
+    pub rms_before_m: f64,
+    pub rms_after_m: f64,
+}
+
+/// The locate step's result.
+#[derive(Clone, Debug, Default)]
+pub struct Located {
+    pub tests: Vec<Test>,
+    pub phases: Vec<PhaseMisfit>,
+    /// The excitation tones found in U (Hz).
+    pub tones_hz: Vec<f64>,
+    /// The residual's spectrum before and after (for the figure).
+    pub spectrum_before: Spectrum,
+    pub spectrum_after: Spectrum,
+}
+
+/// Runs the tests (module docs) on the nominal residual `r_nom` (nm), with the final model's
+/// residual `r_fin` for the per-phase table.
+#[allow(clippy::too_many_arguments)]
+pub fn locate(
+    p: &Problem,
+    phase: &[Phase],
+    trace: &Trace,
+    r_nom: &[f64],
+    r_fin: &[f64],
+    noise: &NoiseModel,
+    alpha: f64,
+) -> Located {
+    let n = r_nom.len();
+    let held = &p.held;
+    let e = noise.whiten(r_nom);
+    let sigma = noise.sigma.max(1e-12);
+    let mut tests: Vec<Test> = Vec::new();
+    let t_s = |i: usize| p.data.t[i] * TIME;
+    // Phases.
+    let mut phases = Vec::new();
+    for ph in Phase::ALL {
+        let idx: Vec<usize> = (0..n).filter(|&i| held[i] && phase[i] == ph).collect();
+        if idx.len() < 16 {
+            continue;
+        }
+        let m = idx.len() as f64;
+        let s: f64 = idx.iter().map(|&i| e[i]).sum();
+        let s2: f64 = idx.iter().map(|&i| e[i] * e[i]).sum();
+        let z = s / (sigma * m.sqrt());
+        let chi = s2 / (sigma * sigma);
+        let rms_b = rms_at(r_nom, &idx) * LENGTH;
+        let rms_a = rms_at(r_fin, &idx) * LENGTH;
+        let span = (t_s(idx[0]), t_s(idx[idx.len() - 1]));
+        tests.push(Test {
+            group: "phase",
+            name: format!("{} offset", ph.as_str()),
+            statistic: "z of the mean whitened residual",
+            value: z,
+            p_value: (2.0 * normal_sf(z.abs())).min(1.0),
+            p_adjusted: f64::NAN,
+            significant: false,
+            detail: format!(
+                "{} held-out samples; nominal misfit {:.3e} m RMS",
+                idx.len(),
+                rms_b
+            ),
+            span: Some(span),
+            freq_hz: None,
+        });
+        tests.push(Test {
+            group: "phase",
+            name: format!("{} excess variance", ph.as_str()),
+            statistic: "chi-square of the whitened residual",
+            value: chi,
+            p_value: chi2_sf(chi, m),
+            p_adjusted: f64::NAN,
+            significant: false,
+            detail: format!(
+                "{:.2}× the noise model's variance over {} samples",
+                chi / m,
+                idx.len()
+            ),
+            span: Some(span),
+            freq_hz: None,
+        });
+        phases.push(PhaseMisfit {
+            phase: ph,
+            samples: idx.len(),
+            rms_before_m: rms_b,
+            rms_after_m: rms_a,
+        });
+    }
+    // State: depth quartiles in contact, loading against unloading.
+    let mut contact: Vec<usize> = (0..n)
+        .filter(|&i| held[i] && trace.depth[i] > 0.0)
+        .collect();
+    if contact.len() >= 64 {
+        contact.sort_by(|&a, &b| trace.depth[a].total_cmp(&trace.depth[b]));
+        let q = contact.len() / 4;
+        for k in 0..4 {
+            let idx = &contact[k * q..if k == 3 { contact.len() } else { (k + 1) * q }];
+            let m = idx.len() as f64;
+            let s: f64 = idx.iter().map(|&i| e[i]).sum();
+            let z = s / (sigma * m.sqrt());
+            let (lo, hi) = (trace.depth[idx[0]], trace.depth[idx[idx.len() - 1]]);
+            tests.push(Test {
+                group: "state",
+                name: format!("depth quarter {}", k + 1),
+                statistic: "z of the mean whitened residual",
+                value: z,
+                p_value: (2.0 * normal_sf(z.abs())).min(1.0),
+                p_adjusted: f64::NAN,
+                significant: false,
+                detail: format!(
+                    "depth {:.3e}–{:.3e} m: misfit {:.3e} m RMS",
+                    lo * LENGTH,
+                    hi * LENGTH,
+                    rms_at(r_nom, idx) * LENGTH
+                ),
+                span: None,
+                freq_hz: None,
+            });
+        }
+        let load: Vec<usize> = (0..n)
+            .filter(|&i| held[i] && trace.depth[i] > 0.0 && phase[i] == Phase::Contact)
+            .collect();
+        let unload: Vec<usize> = (0..n)
+            .filter(|&i| held[i] && trace.depth[i] > 0.0 && phase[i] == Phase::Retract)
+            .collect();
+        if load.len() >= 16 && unload.len() >= 16 {
+            let ml = load.iter().map(|&i| e[i]).sum::<f64>() / load.len() as f64;
+            let mu = unload.iter().map(|&i| e[i]).sum::<f64>() / unload.len() as f64;
+            let se = sigma * (1.0 / load.len() as f64 + 1.0 / unload.len() as f64).sqrt();
+            let z = (ml - mu) / se;
+            tests.push(Test {
+                group: "state",
+                name: "loading against unloading".to_string(),
+                statistic: "z of the difference of mean whitened residuals",
+                value: z,
+                p_value: (2.0 * normal_sf(z.abs())).min(1.0),
+                p_adjusted: f64::NAN,
+                significant: false,
+                detail: format!(
+                    "loading misfit {:.3e} m RMS over {} samples, unloading {:.3e} m RMS over {}",
+                    rms_at(r_nom, &load) * LENGTH,
+                    load.len(),
+                    rms_at(r_nom, &unload) * LENGTH,
+                    unload.len()
+                ),
+                span: None,
+                freq_hz: None,
+            });
+        }
+    }
+    // Frequency.
+    let fs = p.fs_hz();
+    let seg = (n / 8).clamp(64, 4096);
+    let spec_b = Spectrum::welch(r_nom, fs, seg);
+    let spec_a = Spectrum::welch(r_fin, fs, seg);
+    let spec_u = Spectrum::welch(&p.data.u, fs, seg);
+    let mut tones: Vec<f64> = Vec::new();
+    if spec_u.f_hz.len() > 8 {
+        let mut peaks: Vec<(f64, f64)> = (3..spec_u.psd.len() - 1)
+            .filter(|&k| spec_u.psd[k] > spec_u.psd[k - 1] && spec_u.psd[k] >= spec_u.psd[k + 1])
+            .map(|k| {
+                (
+                    spec_u.f_hz[k],
+                    spec_u.psd[k] / spec_u.local_floor(k, 16).max(1e-300),
+                )
+            })
+            .filter(|(_, r)| *r > 100.0)
+            .collect();
+        peaks.sort_by(|a, b| b.1.total_cmp(&a.1));
+        tones = peaks.iter().take(2).map(|x| x.0).collect();
+        tones.sort_by(f64::total_cmp);
+    }
+    let mut lines: Vec<(String, f64)> = Vec::new();
+    for (i, &f) in tones.iter().enumerate() {
+        lines.push((format!("tone {} ({:.4e} Hz)", i + 1, f), f));
+        lines.push((format!("2nd harmonic of tone {}", i + 1), 2.0 * f));
+        lines.push((format!("3rd harmonic of tone {}", i + 1), 3.0 * f));
+    }
+    if tones.len() == 2 {
+        lines.push(("intermodulation f1 + f2".into(), tones[0] + tones[1]));
+        lines.push(("intermodulation f2 − f1".into(), tones[1] - tones[0]));
+    }
+    if let Some(f0) = p.inst.f0_mhz().map(|f| f / TIME) {
+        lines.push((format!("first resonance f0 ({f0:.4e} Hz)"), f0));
+        if let Some((f2, _)) = spec_b
+            .transient_peaks(4.0 * f0, (9.0 * f0).min(0.48 * fs), 1)
+            .first()
+        {
+            lines.push((
+                format!("strongest line between 4 and 9 f0 ({f2:.4e} Hz)"),
+                *f2,
+            ));
+        }
+    }
+    let dof = 2.0 * spec_b.segments.max(1) as f64;
+    for (name, f) in lines {
+        if !(f > 0.0 && f < 0.5 * fs) {
+            continue;
+        }
+        let Some(k) = spec_b.bin(f) else { continue };
+        let floor = spec_b.local_floor(k, 12);
+        if !(floor > 0.0) {
+            continue;
+        }
+        let ratio = spec_b.psd[k] / floor;
+        tests.push(Test {
+            group: "frequency",
+            name,
+            statistic: "residual power / local floor",
+            value: ratio,
+            p_value: chi2_sf(ratio * dof, dof),
+            p_adjusted: f64::NAN,
+            significant: false,
+            detail: format!(
+                "{:.3e} m²/Hz at {:.4e} Hz against a floor of {:.3e} m²/Hz",
+                spec_b.psd[k] * LENGTH * LENGTH,
+                f,
+                floor * LENGTH * LENGTH
+            ),
+            span: None,
+            freq_hz: Some(f),
+        });
+    }
+    // Whiteness and input correlation on the held-out runs.
+    let runs = super::noise::runs(held);
+    let p_ar = noise.a.len();
+    let mut du: Vec<f64> = (0..n)
+        .map(|i| {
+            if i > 0 {
+                p.data.u[i] - p.data.u[i - 1]
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let du_sd = (du.iter().map(|x| x * x).sum::<f64>() / n as f64).sqrt();
+    if du_sd > 0.0 {
+        for x in &mut du {
+            *x /= du_sd;
+        }
+    }
+    let lags = 20usize;
+    let (mut num, mut count) = (vec![0.0; lags + 1], vec![0usize; lags + 1]);
+    let (mut cross, mut ccount) = (vec![0.0; lags + 1], vec![0usize; lags + 1]);
+    let mut total = 0usize;
+    for &(a, b) in &runs {
+        let a = a.max(p_ar);
+        if b <= a {
+            continue;
+        }
+        total += b - a;
+        for lag in 0..=lags {
+            for i in a + lag..b {
+                num[lag] += e[i] * e[i - lag];
+                count[lag] += 1;
+            }
+            for i in a.max(lag)..b {
+                cross[lag] += e[i] * du[i - lag];
+                ccount[lag] += 1;
+            }
+        }
+    }
+    if total > 4 * lags && num[0] > 0.0 {
+        let c0 = num[0] / count[0] as f64;
+        let mut q = 0.0;
+        for lag in 1..=lags {
+            if count[lag] > 0 {
+                let r = num[lag] / count[lag] as f64 / c0;
+                q += r * r * total as f64;
+            }
+        }
+        tests.push(Test {
+            group: "whiteness",
+            name: "Ljung–Box, 20 lags".to_string(),
+            statistic: "Q",
+            value: q,
+            p_value: chi2_sf(q, lags as f64),
+            p_adjusted: f64::NAN,
+            significant: false,
+            detail: "autocorrelation of the whitened held-out residual".to_string(),
+            span: None,
+            freq_hz: None,
+        });
+        if du_sd > 0.0 {
+            let mut q = 0.0;
+            for lag in 0..=lags {
+                if ccount[lag] > 0 {
+                    let r = cross[lag] / ccount[lag] as f64 / c0.sqrt();
+                    q += r * r * total as f64;
+                }
+            }
+            tests.push(Test {
+                group: "input",
+                name: "cross-correlation with U increments, lags 0–20".to_string(),
+                statistic: "Q",
+                value: q,
+                p_value: chi2_sf(q, (lags + 1) as f64),
+                p_adjusted: f64::NAN,
+                significant: false,
+                detail: "what of the input the residual still follows".to_string(),
+                span: None,
+                freq_hz: None,
+            });
+        }
+    }
+    // Time: CUSUM over the held-out samples in order.
+    let idx: Vec<usize> = (0..n).filter(|&i| held[i]).collect();
+    if idx.len() >= 32 {
+        let (mut s, mut best, mut at) = (0.0f64, 0.0f64, 0usize);
+        for (k, &i) in idx.iter().enumerate() {
+            s += e[i] / sigma;
+            if s.abs() > best {
+                best = s.abs();
+                at = k;
+            }
+        }
+        let c = best / (idx.len() as f64).sqrt();
+        tests.push(Test {
+            group: "time",
+            name: "CUSUM of the whitened residual".to_string(),
+            statistic: "max |Σε|/(σ√n)",
+            value: c,
+            p_value: (4.0 * normal_sf(c)).min(1.0),
+            p_adjusted: f64::NAN,
+            significant: false,
+            detail: format!("largest excursion at t = {:.6e} s", t_s(idx[at])),
+            span: Some((t_s(idx[0]), t_s(idx[at]))),
+            freq_hz: None,
+        });
+    }
+    // Map: per unit with a position.
+    if p.unit_xy_m.iter().filter(|x| x.is_some()).count() >= 2 {
+        for (u, &(a, b)) in p.unit_rows.iter().enumerate() {
+            let idx: Vec<usize> = (a..b).filter(|&i| held[i]).collect();
+            if idx.len() < 16 {
+                continue;
+            }
+            let chi: f64 = idx.iter().map(|&i| e[i] * e[i]).sum::<f64>() / (sigma * sigma);
+            let xy = p.unit_xy_m[u];
+            tests.push(Test {
+                group: "map",
+                name: match xy {
+                    Some((x, y)) => format!("tap {u} at ({x:.4e}, {y:.4e}) m"),
+                    None => format!("tap {u}"),
+                },
+                statistic: "chi-square of the whitened residual",
+                value: chi,
+                p_value: chi2_sf(chi, idx.len() as f64),
+                p_adjusted: f64::NAN,
+                significant: false,
+                detail: format!("misfit {:.3e} m RMS", rms_at(r_nom, &idx) * LENGTH),
+                span: Some((t_s(a), t_s(b - 1))),
+                freq_hz: None,
+            });
+        }
+    }
+    holm(&mut tests, alpha);
+    Located {
+        tests,
+        phases,
+        tones_hz: tones,
+        spectrum_before: spec_b,
+        spectrum_after: spec_a,
+    }
+}
+
+/// Holm's step-down adjustment at family-wise rate `alpha`.
+pub fn holm(tests: &mut [Test], alpha: f64) {
+    let m = tests.len();
+    let mut order: Vec<usize> = (0..m).collect();
+    order.sort_by(|&a, &b| tests[a].p_value.total_cmp(&tests[b].p_value));
+    let mut running: f64 = 0.0;
+    for (rank, &i) in order.iter().enumerate() {
+        let adj = ((m - rank) as f64 * tests[i].p_value).min(1.0);
+        running = running.max(adj);
+        tests[i].p_adjusted = running;
+        tests[i].significant = running < alpha;
+    }
+}
+
+fn rms_at(r: &[f64], idx: &[usize]) -> f64 {
+    if idx.is_empty() {
+        return f64::NAN;
+    }
+    (idx.iter().map(|&i| r[i] * r[i]).sum::<f64>() / idx.len() as f64).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn holm_adjusts_in_order() {
+        let mk = |p: f64| Test {
+            group: "x",
+            name: String::new(),
+            statistic: "",
+            value: 0.0,
+            p_value: p,
+            p_adjusted: f64::NAN,
+            significant: false,
+            detail: String::new(),
+            span: None,
+            freq_hz: None,
+        };
+        let mut t = vec![mk(0.01), mk(0.04), mk(0.002), mk(0.5)];
+        holm(&mut t, 0.05);
+        // Sorted: 0.002·4 = 0.008, 0.01·3 = 0.03, 0.04·2 = 0.08, 0.5·1 → monotone.
+        assert!((t[2].p_adjusted - 0.008).abs() < 1e-12);
+        assert!((t[0].p_adjusted - 0.03).abs() < 1e-12);
+        assert!((t[1].p_adjusted - 0.08).abs() < 1e-12);
+        assert!((t[3].p_adjusted - 0.5).abs() < 1e-12);
+        assert_eq!(
+            t.iter().map(|x| x.significant).collect::<Vec<_>>(),
+            vec![true, false, true, false]
+        );
+    }
+}

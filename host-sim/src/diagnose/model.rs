@@ -1,0 +1,505 @@
+//! The model `diagnose` fits: the cantilever's first mode and a spherical tip on a Kelvin–Voigt
+//! element bed, driven by the recorded U, plus any of the plant's effects
+//! ([`crate::plant::effects`]) through the same hooks, in the same order, as the plant.
+//!
+//! ## The nominal model
+//! `M·Z̈ = K·(U − Z) + C·(U̇ − Ż) + F_ts`, D = U − Z (`method.md` (1), (2)), with the bed in
+//! its continuum limit: a sphere of radius R pressed δ = h − Z into a bed of per-area spring
+//! k_a and damper c_a feels
+//!
+//! ```text
+//! F_ts = k_a·V(δ) − c_a·A(δ)·Ż      (δ > 0; 0 otherwise)
+//! ```
+//!
+//! with V the cap volume below the surface and A = πa² = dV/dδ the contact area
+//! ([`crate::identify::signal::cap_volume`]): the sum of the paper's elements (5)–(8) for a
+//! pitch small next to the contact radius. The detector adds an offset d₀. Parameters: d₀, and
+//! per unit (a tap, a curve) the contact height h, k_a and c_a; for dynamic recordings also
+//! the input's hold β (below).
+//!
+//! ## Dynamic and quasi-static recordings
+//! * **Dynamic** (the recording gives M and C, or f₀ and Q, and samples at ≥ 4 f₀): the
+//!   equation of motion is integrated from sample to sample. Over each interval the contact is
+//!   linearised at its start (stiffness k_a·A, damping c_a·A, the rest held) and the linear
+//!   equation solved exactly ([`crate::plant::linear::Propagator`], with a ramp input), so the
+//!   stiff contact (c/M ≈ 10⁶ s⁻¹) is no problem; where the contact's stiffness changes fast
+//!   (the touch, a shallow contact moving quickly) the interval is cut into sub-steps. What U
+//!   did between samples is not in a recording: a controller's DAC holds it (a staircase, the
+//!   plant's convention), a simulator may interpolate it. The input is
+//!   `(1 − β)·staircase + β·linear`, β ∈ [0, 1] fitted with the nominal parameters.
+//! * **Quasi-static** (force curves: µm/s, kHz sampling, far below resonance): the cantilever
+//!   is a spring, `K·(U − Z) + F_ts + F_effects = 0` at every sample, solved implicitly
+//!   (backward Euler for the dampers), the effects' forces iterated to the sample's state.
+//!
+//! Units inside: nm, µs, nN (as the plant).
+
+use crate::plant::effects::{Effect, EffectContext};
+use crate::plant::linear::Propagator;
+use std::f64::consts::PI;
+
+/// What the recording says about the instrument, internal units.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Instrument {
+    /// Cantilever spring constant K (nN/nm).
+    pub k: f64,
+    /// Cantilever damping C (nN·µs/nm); 0 for quasi-static.
+    pub c: f64,
+    /// Effective mass M (internal mass units, nN·µs²/nm); `None` for quasi-static.
+    pub m: Option<f64>,
+    /// Tip radius R (nm).
+    pub r_tip: f64,
+}
+
+impl Instrument {
+    /// Whether the model integrates the cantilever's dynamics.
+    pub fn dynamic(&self) -> bool {
+        self.m.is_some()
+    }
+    /// First-mode resonance (MHz = 1/µs), when dynamic.
+    pub fn f0_mhz(&self) -> Option<f64> {
+        self.m.map(|m| (self.k / m).sqrt() / (2.0 * PI))
+    }
+}
+
+/// One unit's contact: height h (nm), bed spring k_a (nN/nm³), bed damper c_a (nN·µs/nm³).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Contact {
+    pub h: f64,
+    pub k_a: f64,
+    pub c_a: f64,
+}
+
+/// The nominal parameters.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Nominal {
+    /// Detector offset d₀ (nm).
+    pub offset: f64,
+    /// Input between samples: 0 = held (staircase), 1 = linear (dynamic only).
+    pub hold: f64,
+    /// Per unit.
+    pub contacts: Vec<Contact>,
+}
+
+/// The recording in internal units, with each sample's unit.
+#[derive(Clone, Debug)]
+pub struct Data {
+    pub t: Vec<f64>,
+    pub u: Vec<f64>,
+    pub d: Vec<f64>,
+    /// Unit (tap, curve) of each sample, 0-based, non-decreasing.
+    pub unit: Vec<usize>,
+    /// Number of units.
+    pub units: usize,
+}
+
+impl Data {
+    pub fn len(&self) -> usize {
+        self.t.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.t.is_empty()
+    }
+}
+
+/// Per-sample states of a simulation, for locating and figures.
+#[derive(Clone, Debug, Default)]
+pub struct Trace {
+    /// Tip height Z (nm), in the bed's frame.
+    pub z: Vec<f64>,
+    /// Apex depth δ = h − Z (nm); negative above the surface.
+    pub depth: Vec<f64>,
+    /// Sample force on the tip (nN).
+    pub force: Vec<f64>,
+    /// Effective base position after the effects' piezo hooks (nm).
+    pub u_eff: Vec<f64>,
+}
+
+/// Volume of the cap below the bed's surface (nm³) at apex depth δ (see
+/// [`crate::identify::signal::cap_volume`]).
+#[inline]
+pub fn cap_volume(r: f64, d: f64) -> f64 {
+    if d <= 0.0 {
+        0.0
+    } else if d <= r {
+        PI * d * d * (r - d / 3.0)
+    } else {
+        PI * r * r * (d - r / 3.0)
+    }
+}
+
+/// Contact area πa² (nm²) at apex depth δ: dV/dδ.
+#[inline]
+pub fn contact_area(r: f64, d: f64) -> f64 {
+    if d <= 0.0 {
+        0.0
+    } else if d <= r {
+        PI * d * (2.0 * r - d)
+    } else {
+        PI * r * r
+    }
+}
+
+/// Largest sub-steps per interval.
+const SUBSTEPS_MAX: usize = 64;
+
+/// Runs the model over `data`: the simulated detector reading per sample (nm), and the states
+/// when `trace` is given. `effects` are fresh (their state starts at the first sample).
+pub fn simulate(
+    inst: &Instrument,
+    nom: &Nominal,
+    effects: &mut [Box<dyn Effect>],
+    data: &Data,
+    mut trace: Option<&mut Trace>,
+) -> Vec<f64> {
+    let n = data.len();
+    let mut out = Vec::with_capacity(n);
+    if n == 0 {
+        return out;
+    }
+    if let Some(tr) = trace.as_deref_mut() {
+        *tr = Trace::default();
+        tr.z.reserve(n);
+        tr.depth.reserve(n);
+        tr.force.reserve(n);
+        tr.u_eff.reserve(n);
+    }
+    let (k_lin, c_lin) = effects.iter().fold((0.0, 0.0), |(k, c), e| {
+        let (ek, ec) = e.linear_terms();
+        (k + ek, c + ec)
+    });
+    let r = inst.r_tip;
+    let contact_of = |i: usize| nom.contacts[data.unit[i].min(nom.contacts.len() - 1)];
+    // Start at rest in static equilibrium with the first U (effects' held forces excluded, as
+    // the plant's settle).
+    let c0 = contact_of(0);
+    let mut z = static_equilibrium(inst.k + k_lin, inst.k * data.u[0], c0, r);
+    let mut v = 0.0;
+    let mut u_eff_prev = data.u[0];
+    let dt_first = if n > 1 { data.t[1] - data.t[0] } else { 1.0 };
+    for i in 0..n {
+        let ct = contact_of(i);
+        let dt = if i == 0 {
+            dt_first
+        } else {
+            data.t[i] - data.t[i - 1]
+        };
+        let u_cmd = data.u[i];
+        if i > 0 {
+            let ctx0 = context(ct, r, data.t[i - 1], dt, z, v, u_cmd);
+            let mut u_eff = u_cmd;
+            for e in effects.iter() {
+                u_eff = e.piezo_z_nm(&ctx0, u_eff);
+            }
+            match inst.m {
+                Some(m) => {
+                    let mut f_eff = 0.0;
+                    for e in effects.iter() {
+                        f_eff += e.tip_force_nn(&ctx0);
+                    }
+                    let sys = Dyn {
+                        m,
+                        k: inst.k + k_lin,
+                        k_base: inst.k,
+                        c: inst.c + c_lin,
+                        c_base: inst.c,
+                        r,
+                        ct,
+                    };
+                    (z, v) = sys.interval(z, v, u_eff_prev, u_eff, nom.hold, f_eff, dt);
+                }
+                None => {
+                    (z, v) =
+                        quasi_static_step(inst, ct, effects, &ctx0, u_eff, z, dt, k_lin, c_lin);
+                }
+            }
+            u_eff_prev = u_eff;
+        }
+        // Measure.
+        let ctx = context(ct, r, data.t[i], dt, z, v, u_cmd);
+        let mut d = u_eff_prev - z;
+        for e in effects.iter() {
+            d = e.measured_deflection_nm(&ctx, d);
+        }
+        for e in effects.iter_mut() {
+            e.end_of_step(&ctx);
+        }
+        out.push(d + nom.offset);
+        if let Some(tr) = trace.as_deref_mut() {
+            tr.z.push(z);
+            tr.depth.push(ct.h - z);
+            tr.force.push(ctx.contact_force_nn);
+            tr.u_eff.push(u_eff_prev);
+        }
+    }
+    out
+}
+
+/// What the effects see at time `t` with the tip at (Z, Ż) and the commanded U.
+#[inline]
+fn context(ct: Contact, r: f64, t: f64, dt: f64, z: f64, v: f64, u_cmd: f64) -> EffectContext {
+    let (fe, fd) = force(ct, r, z, v);
+    EffectContext {
+        time_us: t,
+        dt_us: dt,
+        z_nm: z,
+        z_dot_nm_per_us: v,
+        u_nm: u_cmd,
+        x_nm: 0.0,
+        y_nm: 0.0,
+        contact_force_nn: fe + fd,
+        elastic_force_nn: fe,
+        depth_nm: ct.h - z,
+        active_elements: usize::from(ct.h > z),
+    }
+}
+
+/// The bed's (elastic, damping) force on the tip at (Z, Ż).
+#[inline]
+fn force(ct: Contact, r: f64, z: f64, v: f64) -> (f64, f64) {
+    let d = ct.h - z;
+    if d > 0.0 {
+        (ct.k_a * cap_volume(r, d), -ct.c_a * contact_area(r, d) * v)
+    } else {
+        (0.0, 0.0)
+    }
+}
+
+/// Z where `k·Z = f + k_a·V(h − Z)` (the static balance with the base force f = K·U).
+fn static_equilibrium(k: f64, f: f64, ct: Contact, r: f64) -> f64 {
+    let free = f / k;
+    if free >= ct.h || ct.k_a <= 0.0 {
+        return free;
+    }
+    // g(z) = f + k_a·V(h − z) − k·z decreases in z; root in [free, h).
+    let g = |z: f64| f + ct.k_a * cap_volume(r, ct.h - z) - k * z;
+    let (mut lo, mut hi) = (free, ct.h);
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if g(mid) > 0.0 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+        if hi - lo < 1e-12 * (1.0 + hi.abs()) {
+            break;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// The dynamic system of one interval.
+struct Dyn {
+    m: f64,
+    /// Cantilever stiffness with the effects' linear terms (on Z).
+    k: f64,
+    /// Cantilever stiffness on U.
+    k_base: f64,
+    c: f64,
+    c_base: f64,
+    r: f64,
+    ct: Contact,
+}
+
+impl Dyn {
+    /// Advances (z, v) over one sample interval of length `dt` with the base going from
+    /// `u0` to `u1` (`hold` = share of the linear input), an extra held force `f_eff`.
+    #[allow(clippy::too_many_arguments)]
+    fn interval(
+        &self,
+        z: f64,
+        v: f64,
+        u0: f64,
+        u1: f64,
+        hold: f64,
+        f_eff: f64,
+        dt: f64,
+    ) -> (f64, f64) {
+        // The held share jumps at the start: an impulse C·Δu/M through the base damping.
+        let du = u1 - u0;
+        let v = v + (1.0 - hold) * self.c_base * du / self.m;
+        // Trial step; cut into sub-steps where the contact stiffness changes fast.
+        let (z1, v1) = self.piece(z, v, u0, u1, hold, 0.0, 1.0, f_eff, dt);
+        let d0 = self.ct.h - z;
+        let d1 = self.ct.h - z1;
+        if !(d0 > 0.0 || d1 > 0.0) || self.ct.k_a <= 0.0 {
+            return (z1, v1);
+        }
+        let shallow = d0.min(d1) < self.r;
+        if !shallow {
+            return (z1, v1);
+        }
+        // Relative change of the contact area over the step: A ∝ δ while shallow.
+        let scale = d0.max(d1).max(1e-3);
+        let n = ((z1 - z).abs() / (0.02 * scale)).ceil() as usize;
+        if n <= 1 {
+            return (z1, v1);
+        }
+        let n = n.min(SUBSTEPS_MAX);
+        let (mut zz, mut vv) = (z, v);
+        for j in 0..n {
+            let (s0, s1) = (j as f64 / n as f64, (j + 1) as f64 / n as f64);
+            (zz, vv) = self.piece(zz, vv, u0, u1, hold, s0, s1, f_eff, dt);
+        }
+        (zz, vv)
+    }
+
+    /// Exact solution over the fraction `[s0, s1]` of the interval with the contact linearised
+    /// at its start. The base there is `u(s) = (1 − β)·u1 + β·(u0 + (u1 − u0)·s)`.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    fn piece(
+        &self,
+        z: f64,
+        v: f64,
+        u0: f64,
+        u1: f64,
+        hold: f64,
+        s0: f64,
+        s1: f64,
+        f_eff: f64,
+        dt: f64,
+    ) -> (f64, f64) {
+        let tau = (s1 - s0) * dt;
+        let d = self.ct.h - z;
+        let (kt, ct, f_hold) = if d > 0.0 {
+            let a = contact_area(self.r, d);
+            let kt = self.ct.k_a * a;
+            let cc = self.ct.c_a * a;
+            // F ≈ f_hold − kt·Z − cc·Ż around the start.
+            let f0 = self.ct.k_a * cap_volume(self.r, d) - cc * v;
+            (kt, cc, f0 + kt * z + cc * v)
+        } else {
+            (0.0, 0.0, 0.0)
+        };
+        let k_t = self.k + kt;
+        let c_t = self.c + ct;
+        // Input over the piece, in local time τ' ∈ [0, τ]: u = ua + g·τ'.
+        let g = hold * (u1 - u0) / dt;
+        let ua = (1.0 - hold) * u1 + hold * (u0 + (u1 - u0) * s0);
+        let f0 = self.k_base * ua + self.c_base * g + f_hold + f_eff;
+        let f1 = self.k_base * g;
+        // Particular solution α + γτ', then the homogeneous deviation exactly.
+        let gamma = f1 / k_t;
+        let alpha = (f0 - c_t * gamma) / k_t;
+        let p = Propagator::new(self.m, c_t, k_t, tau);
+        let (e1, ed1) = p.apply(z - alpha, v - gamma, 0.0);
+        (e1 + alpha + gamma * tau, ed1 + gamma)
+    }
+}
+
+/// One quasi-static sample: Z where `K·(U − Z) − k_lin·Z + F_ts + F_eff = 0` with the dampers
+/// by backward Euler; the effects' forces are evaluated at the solution (twice iterated).
+#[allow(clippy::too_many_arguments)]
+fn quasi_static_step(
+    inst: &Instrument,
+    ct: Contact,
+    effects: &[Box<dyn Effect>],
+    ctx0: &EffectContext,
+    u: f64,
+    z_prev: f64,
+    dt: f64,
+    k_lin: f64,
+    c_lin: f64,
+) -> (f64, f64) {
+    let r = inst.r_tip;
+    let mut f_eff = 0.0;
+    for e in effects {
+        f_eff += e.tip_force_nn(ctx0);
+    }
+    let mut z = solve_quasi_static(inst.k, k_lin, c_lin, ct, r, u, z_prev, dt, f_eff);
+    if !effects.is_empty() {
+        for _ in 0..2 {
+            let v = (z - z_prev) / dt;
+            let (fe, fd) = force(ct, r, z, v);
+            let ctx = EffectContext {
+                z_nm: z,
+                z_dot_nm_per_us: v,
+                contact_force_nn: fe + fd,
+                elastic_force_nn: fe,
+                depth_nm: ct.h - z,
+                active_elements: usize::from(ct.h > z),
+                ..*ctx0
+            };
+            let f_new: f64 = effects.iter().map(|e| e.tip_force_nn(&ctx)).sum();
+            if (f_new - f_eff).abs() <= 1e-12 * (1.0 + f_eff.abs()) {
+                break;
+            }
+            f_eff = f_new;
+            z = solve_quasi_static(inst.k, k_lin, c_lin, ct, r, u, z_prev, dt, f_eff);
+        }
+    }
+    (z, (z - z_prev) / dt)
+}
+
+/// The root of `g(z) = K·(u − z) − k_lin·z − c_lin·(z − z₀)/dt + k_a·V(h − z)
+/// − c_a·A(h − z)·(z − z₀)/dt + f = 0`, strictly decreasing in z.
+#[allow(clippy::too_many_arguments)]
+fn solve_quasi_static(
+    k: f64,
+    k_lin: f64,
+    c_lin: f64,
+    ct: Contact,
+    r: f64,
+    u: f64,
+    z0: f64,
+    dt: f64,
+    f: f64,
+) -> f64 {
+    let cd = c_lin / dt;
+    let g = |z: f64| -> (f64, f64) {
+        let d = ct.h - z;
+        let (fe, a) = if d > 0.0 {
+            (ct.k_a * cap_volume(r, d), contact_area(r, d))
+        } else {
+            (0.0, 0.0)
+        };
+        let cb = ct.c_a * a / dt;
+        let val = k * (u - z) - k_lin * z - cd * (z - z0) + fe - cb * (z - z0) + f;
+        // Slope: the area's own change with z is left out (it only steers Newton).
+        let slope = -(k + k_lin + cd + ct.k_a * a + cb);
+        (val, slope)
+    };
+    // Free solution first: valid when it stays above the surface.
+    let z_free = (k * u + cd * z0 + f) / (k + k_lin + cd);
+    if z_free >= ct.h || ct.k_a <= 0.0 && ct.c_a <= 0.0 {
+        return z_free;
+    }
+    // Bracket: g(h) ≥ 0 side is below... g decreases in z; g(z_free) ≥ 0 when the bed pushes.
+    let mut lo = z_free.min(ct.h);
+    let mut hi = ct.h.max(z_free);
+    // Ensure g(lo) ≥ 0 ≥ g(hi).
+    let mut step = (hi - lo).abs().max(1.0);
+    while g(lo).0 < 0.0 {
+        lo -= step;
+        step *= 2.0;
+        if step > 1e12 {
+            break;
+        }
+    }
+    let mut step = 1.0;
+    while g(hi).0 > 0.0 {
+        hi += step;
+        step *= 2.0;
+        if step > 1e12 {
+            break;
+        }
+    }
+    let mut x = z0.clamp(lo, hi);
+    for _ in 0..100 {
+        let (gx, s) = g(x);
+        if gx > 0.0 {
+            lo = x;
+        } else {
+            hi = x;
+        }
+        let mut next = x - gx / s;
+        if !(next > lo && next < hi) {
+            next = 0.5 * (lo + hi);
+        }
+        if (next - x).abs() <= 1e-13 * (1.0 + x.abs()) || hi - lo <= 1e-13 * (1.0 + x.abs()) {
+            return next;
+        }
+        x = next;
+    }
+    x
+}

@@ -1,0 +1,729 @@
+//! The diagnosis as a whole: [`analyse`] a recording in memory (no I/O), [`diagnose`] a file
+//! and write its report (`recording.md` §2), series and figures, all or nothing.
+//!
+//! Outputs, next to the report or in `--out DIR`, named after the report's stem:
+//! `<stem>_series.csv` (every sample: recorded, nominal and extended D, the residuals, the
+//! phase, whether held out), `<stem>_overview.png` (the whole recording), one
+//! `<stem>_effect<i>_<effect>.png` per effect found (recorded, nominal and extended D and the
+//! residual before and after, over where it acts), `<stem>_spectrum.png` (the residual's
+//! spectrum before and after, with the tested lines).
+
+use std::path::{Path, PathBuf};
+
+use super::candidates::Env;
+use super::explain::explain;
+use super::locate::{locate, phases, spans, Located, Phase, Span};
+use super::model::Trace;
+use super::noise::HeldOut;
+use super::problem::{Problem, BLOCKS};
+use super::search::{c_a_si, k_a_si, Search, SearchOptions, DETECTION_FLOOR};
+use crate::identify::error::{IdentifyError, Result};
+use crate::identify::figures::plain;
+use crate::identify::files::{push_num, Staged};
+use crate::identify::json::Json;
+use crate::output::figure::{self, LinePanel, LinePlot, Quantity, Series, PALETTE};
+use crate::plant::effects::EffectKind;
+use crate::recording::{Mode, Recording};
+use visco_core::units::{LENGTH, TIME};
+
+/// The nominal model, in the report's words.
+pub const NOMINAL_MODEL: &str =
+    "cantilever first mode + spherical tip on a Kelvin–Voigt element bed";
+
+/// Largest recording diagnosed (rows): it is held in memory and simulated a few thousand
+/// times.
+pub const MAX_ROWS: usize = 4_000_000;
+
+/// What the command line (or a caller) chooses.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Options {
+    /// The JSON report.
+    pub json: PathBuf,
+    /// Directory for the figures and the series (default: the report's).
+    pub out_dir: Option<PathBuf>,
+    /// Family-wise false-alarm rate of each selection stage (and of the locate tests).
+    pub alpha: f64,
+    /// At most this many effects.
+    pub max_effects: usize,
+    /// The candidates.
+    pub effects: Vec<EffectKind>,
+    /// Report each step on stderr.
+    pub progress: bool,
+    /// Write the figures.
+    pub figures: bool,
+}
+
+impl Options {
+    /// Defaults, writing the report to `json`.
+    pub fn new(json: impl Into<PathBuf>) -> Self {
+        Options {
+            json: json.into(),
+            out_dir: None,
+            alpha: 0.01,
+            max_effects: 3,
+            effects: EffectKind::ALL.to_vec(),
+            progress: false,
+            figures: true,
+        }
+    }
+    fn search(&self) -> SearchOptions {
+        SearchOptions {
+            alpha: self.alpha,
+            max_effects: self.max_effects,
+            kinds: self.effects.clone(),
+        }
+    }
+}
+
+/// One effect found.
+#[derive(Clone, Debug)]
+pub struct Finding {
+    pub kind: EffectKind,
+    pub explanation: String,
+    pub spans: Vec<Span>,
+    /// Parameters by name, SI.
+    pub parameters: Vec<(String, f64)>,
+    /// Held-out RMS where it acts (its contribution a tenth of its peak or more), before and
+    /// after it joined the model (m).
+    pub rms_before_m: f64,
+    pub rms_after_m: f64,
+    pub evidence: HeldOut,
+    /// The per-test level it passed.
+    pub level: f64,
+    /// Its largest contribution to D and the noise it was compared with (m).
+    pub peak_m: f64,
+    pub noise_m: f64,
+}
+
+/// The result of [`analyse`].
+#[derive(Clone, Debug)]
+pub struct Diagnosis {
+    pub problem: Problem,
+    pub search: Search,
+    pub env: Env,
+    /// Held-out RMS of recorded − simulated D, nominal and final (m).
+    pub rms_before_m: f64,
+    pub rms_after_m: f64,
+    pub findings: Vec<Finding>,
+    pub located: Located,
+    pub phase: Vec<Phase>,
+    /// Simulated D (m) of the nominal and final models, every sample.
+    pub nominal_d_m: Vec<f64>,
+    pub final_d_m: Vec<f64>,
+    /// Simulated D (m) of the model before and after each finding.
+    pub stages_d_m: Vec<Vec<f64>>,
+    pub alpha: f64,
+}
+
+/// Diagnoses a recording held in memory (no files).
+pub fn analyse(
+    rec: &Recording,
+    opts: &SearchOptions,
+    mut progress: impl FnMut(&str),
+) -> std::result::Result<Diagnosis, String> {
+    if rec.meta.mode == Mode::Sve {
+        return Err(
+            "an SVE scan's topography changes under the tip along every line, which \
+                    the flat bed of the nominal model cannot follow; diagnose handles taps \
+                    (dive) and force curves"
+                .into(),
+        );
+    }
+    if rec.len() > MAX_ROWS {
+        return Err(format!(
+            "{} rows: a diagnosis holds the recording in memory and simulates it thousands of \
+             times, up to {MAX_ROWS} rows",
+            rec.len()
+        ));
+    }
+    let p = Problem::new(rec).map_err(|e| e.0)?;
+    let search = p.search(opts, &mut progress);
+    progress("locating the misfit");
+    let env = search.env.clone();
+    let mut tr_nom = Trace::default();
+    let sim_nom = p.simulate(&search.nominal, &env, Some(&mut tr_nom));
+    let sim_fin = p.simulate(&search.model, &env, None);
+    let d = &p.data.d;
+    let r_nom: Vec<f64> = d.iter().zip(&sim_nom).map(|(a, b)| a - b).collect();
+    let r_fin: Vec<f64> = d.iter().zip(&sim_fin).map(|(a, b)| a - b).collect();
+    let phase = phases(&p, &tr_nom);
+    let located = locate(
+        &p,
+        &phase,
+        &tr_nom,
+        &r_nom,
+        &r_fin,
+        &search.nominal_noise,
+        opts.alpha,
+    );
+    let held_rms = |r: &[f64], idx: &dyn Fn(usize) -> bool| {
+        let (mut s, mut n) = (0.0, 0usize);
+        for i in 0..r.len() {
+            if p.held[i] && idx(i) {
+                s += r[i] * r[i];
+                n += 1;
+            }
+        }
+        if n == 0 {
+            f64::NAN
+        } else {
+            (s / n as f64).sqrt() * LENGTH
+        }
+    };
+    // Each finding against the model before it.
+    let mut findings = Vec::new();
+    let mut stages_d = vec![sim_nom.iter().map(|x| x * LENGTH).collect::<Vec<f64>>()];
+    for (k, t) in search.chosen.iter().enumerate() {
+        let sim_a = p.simulate(&t.model, &env, None);
+        let sp = spans(&p, &phase, &t.contribution, t.noise_rms, 6);
+        let (cand, vals) = t.model.effects.last().expect("an effect was added");
+        let peak = t.peak() * LENGTH;
+        findings.push(Finding {
+            kind: t.kind,
+            explanation: explain(t.kind, vals, &env, &sp, peak),
+            parameters: cand.spec(vals, &env).parameters(),
+            rms_before_m: t.rms_where_before * LENGTH,
+            rms_after_m: t.rms_where_after * LENGTH,
+            evidence: t.test,
+            level: search.levels.get(k).copied().unwrap_or(f64::NAN),
+            peak_m: peak,
+            noise_m: t.noise_rms * LENGTH,
+            spans: sp,
+        });
+        stages_d.push(sim_a.iter().map(|x| x * LENGTH).collect());
+    }
+    let all = |_: usize| true;
+    Ok(Diagnosis {
+        rms_before_m: held_rms(&r_nom, &all),
+        rms_after_m: held_rms(&r_fin, &all),
+        nominal_d_m: sim_nom.iter().map(|x| x * LENGTH).collect(),
+        final_d_m: sim_fin.iter().map(|x| x * LENGTH).collect(),
+        stages_d_m: stages_d,
+        problem: p,
+        search,
+        env,
+        findings,
+        located,
+        phase,
+        alpha: opts.alpha,
+    })
+}
+
+impl Diagnosis {
+    /// The report (`recording.md` §2 and more).
+    pub fn to_json(&self, recording: &str, rec: &Recording) -> Json {
+        let p = &self.problem;
+        let left_out: Vec<Json> = self
+            .findings
+            .iter()
+            .map(|f| {
+                let mut params = Json::obj();
+                for (k, v) in &f.parameters {
+                    params.set(k, *v);
+                }
+                Json::obj()
+                    .with("effect", f.kind.as_str())
+                    .with("explanation", f.explanation.as_str())
+                    .with(
+                        "where",
+                        Json::Arr(f.spans.iter().map(|s| s.to_json()).collect()),
+                    )
+                    .with("parameters", params)
+                    .with("rms_before_m", f.rms_before_m)
+                    .with("rms_after_m", f.rms_after_m)
+                    .with(
+                        "evidence",
+                        Json::obj()
+                            .with("statistic", "held-out likelihood ratio")
+                            .with("value", 2.0 * f.evidence.loglik_gain)
+                            .with("z", f.evidence.z)
+                            .with("p_value", f.evidence.p_value)
+                            .with("level", f.level)
+                            .with("held_out_samples", f.evidence.n)
+                            .with("peak_contribution_m", f.peak_m)
+                            .with("noise_rms_m", f.noise_m)
+                            .with("physics", f.kind.physics()),
+                    )
+            })
+            .collect();
+        let s = &self.search;
+        let contacts: Vec<Json> = s
+            .nominal
+            .nominal
+            .contacts
+            .iter()
+            .enumerate()
+            .map(|(u, c)| {
+                let (a, b) = p.unit_rows[u];
+                let mut j = Json::obj()
+                    .with("unit", u)
+                    .with("rows", vec![a as f64 + 1.0, b as f64])
+                    .with("in_contact", c.k_a > 0.0)
+                    .with("contact_height_m", c.h * LENGTH)
+                    .with("k_a_n_per_m3", k_a_si(c.k_a))
+                    .with("c_a_ns_per_m3", c_a_si(c.c_a));
+                if let Some((x, y)) = p.unit_xy_m[u] {
+                    j.set("x_m", x);
+                    j.set("y_m", y);
+                }
+                j
+            })
+            .collect();
+        let mut stages: Vec<Json> = Vec::new();
+        for (stage, level) in s.levels.iter().enumerate() {
+            let cands: Vec<Json> = s
+                .tested
+                .iter()
+                .filter(|(st, _, _)| *st == stage)
+                .map(|(_, t, chosen)| {
+                    Json::obj()
+                        .with("effect", t.kind.as_str())
+                        .with("z", t.test.z)
+                        .with("p_value", t.test.p_value)
+                        .with("held_out_loglik_gain", t.test.loglik_gain)
+                        .with("peak_contribution_m", t.peak() * LENGTH)
+                        .with("noise_rms_m", t.noise_rms * LENGTH)
+                        .with("passed_test", t.test.p_value < *level)
+                        .with("passed_floor", t.peak() >= DETECTION_FLOOR * t.noise_rms)
+                        .with("rms_where_before_m", t.rms_where_before * LENGTH)
+                        .with("rms_where_after_m", t.rms_where_after * LENGTH)
+                        .with("chosen", *chosen)
+                })
+                .collect();
+            stages.push(
+                Json::obj()
+                    .with("stage", stage + 1)
+                    .with("level", *level)
+                    .with("candidates", Json::Arr(cands)),
+            );
+        }
+        let nn = &s.nominal_noise;
+        Json::obj()
+            .with("recording", recording)
+            .with("nominal_model", NOMINAL_MODEL)
+            .with("rms_before_m", self.rms_before_m)
+            .with("rms_after_m", self.rms_after_m)
+            .with("left_out", Json::Arr(left_out))
+            .with("visco_version", env!("CARGO_PKG_VERSION"))
+            .with("mode", rec.meta.mode.as_str())
+            .with(
+                "nominal",
+                Json::obj()
+                    .with(
+                        "model",
+                        "M·Z̈ = K·(U − Z) + C·(U̇ − Ż) + F_ts, D = U − Z + d0, \
+                         F_ts = k_a·V(δ) − c_a·A(δ)·Ż (sphere on the bed's continuum)",
+                    )
+                    .with("dynamics", p.dynamics_source.as_str())
+                    .with(
+                        "input_between_samples",
+                        if !p.inst.dynamic() {
+                            "not used (quasi-static)"
+                        } else if s.nominal.nominal.hold > 0.5 {
+                            "linear (a continuous source, sampled)"
+                        } else {
+                            "held (a DAC's staircase)"
+                        },
+                    )
+                    .with("offset_m", s.nominal.nominal.offset * LENGTH)
+                    .with("contacts", Json::Arr(contacts))
+                    .with(
+                        "noise",
+                        Json::obj()
+                            .with("model", "autoregressive, Burg, order by BIC")
+                            .with("order", nn.a.len())
+                            .with("innovation_sigma_m", nn.sigma * LENGTH)
+                            .with("residual_sigma_m", nn.raw_sigma * LENGTH),
+                    ),
+            )
+            .with(
+                "held_out",
+                Json::obj()
+                    .with(
+                        "scheme",
+                        "interleaved blocks: every other block fits, the rest is held out",
+                    )
+                    .with("blocks", BLOCKS)
+                    .with("held_out_samples", p.held.iter().filter(|h| **h).count())
+                    .with("fit_samples", p.fit.iter().filter(|h| **h).count()),
+            )
+            .with(
+                "selection",
+                Json::obj()
+                    .with(
+                        "method",
+                        "forward selection: each candidate fitted on the fit samples and \
+                         tested on the held-out ones (whitened likelihood ratio, one-sided \
+                         z); the significant one with the largest held-out likelihood gain \
+                         joins the model",
+                    )
+                    .with("family_alpha", self.alpha)
+                    .with("correction", "Bonferroni over the candidates of each stage")
+                    .with(
+                        "detection_floor",
+                        format!(
+                            "an effect must also change D by {DETECTION_FLOOR}× the noise \
+                             RMS somewhere"
+                        ),
+                    )
+                    .with("simulations", s.evaluations)
+                    .with("stages", Json::Arr(stages)),
+            )
+            .with(
+                "locate",
+                Json::obj()
+                    .with(
+                        "correction",
+                        format!("Holm, family-wise α = {}", self.alpha),
+                    )
+                    .with("tones_hz", self.located.tones_hz.clone())
+                    .with(
+                        "phases",
+                        Json::Arr(
+                            self.located
+                                .phases
+                                .iter()
+                                .map(|m| {
+                                    Json::obj()
+                                        .with("phase", m.phase.as_str())
+                                        .with("held_out_samples", m.samples)
+                                        .with("rms_before_m", m.rms_before_m)
+                                        .with("rms_after_m", m.rms_after_m)
+                                })
+                                .collect(),
+                        ),
+                    )
+                    .with(
+                        "tests",
+                        Json::Arr(self.located.tests.iter().map(|t| t.to_json()).collect()),
+                    ),
+            )
+            .with(
+                "units",
+                Json::obj()
+                    .with("_m", "metres")
+                    .with("_s", "seconds")
+                    .with("_hz", "hertz")
+                    .with("_n", "newtons")
+                    .with("_ns_per_m", "N·s/m")
+                    .with("_n_per_m3", "N/m³ (per-area spring of the bed)")
+                    .with("_ns_per_m3", "N·s/m³ (per-area damper of the bed)")
+                    .with("rows", "1-based data rows, first and last"),
+            )
+    }
+
+    /// One line per finding, for the terminal.
+    pub fn summary(&self) -> String {
+        let mut s = format!(
+            "held-out RMS misfit {:.4e} m nominal, {:.4e} m with {} effect(s)",
+            self.rms_before_m,
+            self.rms_after_m,
+            self.findings.len()
+        );
+        if self.findings.is_empty() {
+            s.push_str(": the nominal model explains the recording to within its noise");
+        }
+        for (i, f) in self.findings.iter().enumerate() {
+            s.push_str(&format!(
+                "\n  {}. {} (z = {:.1}, p = {:.2e}): {}",
+                i + 1,
+                f.kind,
+                f.evidence.z,
+                f.evidence.p_value,
+                f.explanation
+            ));
+        }
+        s
+    }
+
+    /// Every sample: recorded, nominal and final D, residuals, phase, held out.
+    pub fn series_csv(&self) -> String {
+        let p = &self.problem;
+        let mut s = String::from(
+            "# visco diagnose: recorded and simulated deflection per sample\n\
+             t_s,u_m,d_recorded_m,d_nominal_m,d_extended_m,residual_before_m,\
+             residual_after_m,phase,held_out\n",
+        );
+        for i in 0..p.data.len() {
+            let d = p.data.d[i] * LENGTH;
+            for v in [
+                p.data.t[i] * TIME,
+                p.data.u[i] * LENGTH,
+                d,
+                self.nominal_d_m[i],
+                self.final_d_m[i],
+                d - self.nominal_d_m[i],
+                d - self.final_d_m[i],
+            ] {
+                push_num(&mut s, v);
+                s.push(',');
+            }
+            s.push_str(self.phase[i].as_str());
+            s.push(',');
+            s.push_str(if p.held[i] { "1" } else { "0" });
+            s.push('\n');
+        }
+        s
+    }
+}
+
+/// Reads, analyses and writes (module docs). All outputs or none.
+pub fn diagnose(path: &Path, opts: &Options) -> Result<Diagnosis> {
+    if !(opts.alpha > 0.0 && opts.alpha < 1.0) {
+        return Err(IdentifyError::new(&opts.json, "--alpha must be in (0, 1)"));
+    }
+    let (dir, stem) =
+        crate::identify::files::plan_outputs(&opts.json, opts.out_dir.as_deref(), path)?;
+    let rec = Recording::read(path)?;
+    let mut progress = |s: &str| {
+        if opts.progress {
+            eprintln!("diagnose: {s}");
+        }
+    };
+    let diag =
+        analyse(&rec, &opts.search(), &mut progress).map_err(|e| IdentifyError::new(path, e))?;
+    let created = crate::identify::files::create_missing_dir(&dir)?;
+    let result = write(&diag, path, &rec, opts, &dir, &stem);
+    if result.is_err() && created {
+        let _ = std::fs::remove_dir(&dir);
+    }
+    result.map(|_| diag)
+}
+
+fn write(
+    diag: &Diagnosis,
+    path: &Path,
+    rec: &Recording,
+    opts: &Options,
+    dir: &Path,
+    stem: &str,
+) -> Result<Vec<PathBuf>> {
+    let mut staged = Staged::new();
+    let out = |suffix: &str| dir.join(format!("{stem}_{suffix}"));
+    let series = out("series.csv");
+    staged.write(&series, &diag.series_csv())?;
+    let mut figures: Vec<PathBuf> = Vec::new();
+    if opts.figures {
+        let name = path
+            .file_name()
+            .map_or(String::new(), |n| n.to_string_lossy().into_owned());
+        let f = out("overview.png");
+        let plot = overview_plot(diag, &name);
+        staged.render(&f, |tmp| figure::lines(tmp, &plot))?;
+        figures.push(f);
+        for (i, finding) in diag.findings.iter().enumerate() {
+            let f = out(&format!("effect{}_{}.png", i + 1, finding.kind));
+            let plot = effect_plot(diag, i, &name);
+            staged.render(&f, |tmp| figure::lines(tmp, &plot))?;
+            figures.push(f);
+        }
+        if diag.located.spectrum_before.f_hz.len() > 4 {
+            let f = out("spectrum.png");
+            let plot = spectrum_plot(diag, &name);
+            staged.render(&f, |tmp| figure::lines(tmp, &plot))?;
+            figures.push(f);
+        }
+    }
+    let mut json = diag.to_json(&path.display().to_string(), rec);
+    json.set("series_csv", series.display().to_string());
+    json.set(
+        "figures",
+        Json::Arr(
+            figures
+                .iter()
+                .map(|f| Json::from(f.display().to_string()))
+                .collect(),
+        ),
+    );
+    staged.write(&opts.json, &json.to_pretty())?;
+    staged.commit()
+}
+
+/// At most this many points per series in a figure (min and max per bucket beyond it).
+const FIGURE_POINTS: usize = 4000;
+
+/// (t, y) points of rows `a..b`, as bucket minima and maxima when there are too many.
+fn points(t: &[f64], y: &[f64], a: usize, b: usize) -> Vec<(f64, f64)> {
+    let n = b - a;
+    if n <= FIGURE_POINTS {
+        return (a..b).map(|i| (t[i], y[i])).collect();
+    }
+    let per = n.div_ceil(FIGURE_POINTS / 2);
+    let mut out = Vec::with_capacity(FIGURE_POINTS + 2);
+    let mut i = a;
+    while i < b {
+        let j = (i + per).min(b);
+        let (mut lo, mut hi) = (i, i);
+        for k in i..j {
+            if y[k] < y[lo] {
+                lo = k;
+            }
+            if y[k] > y[hi] {
+                hi = k;
+            }
+        }
+        let (first, second) = if lo < hi { (lo, hi) } else { (hi, lo) };
+        out.push((t[first], y[first]));
+        out.push((t[second], y[second]));
+        i = j;
+    }
+    out
+}
+
+fn overview_plot(diag: &Diagnosis, name: &str) -> LinePlot {
+    let p = &diag.problem;
+    let t: Vec<f64> = p.data.t.iter().map(|x| x * TIME).collect();
+    let d: Vec<f64> = p.data.d.iter().map(|x| x * LENGTH).collect();
+    let n = t.len();
+    let rb: Vec<f64> = d
+        .iter()
+        .zip(&diag.nominal_d_m)
+        .map(|(a, b)| a - b)
+        .collect();
+    let ra: Vec<f64> = d.iter().zip(&diag.final_d_m).map(|(a, b)| a - b).collect();
+    let found: Vec<&str> = diag.findings.iter().map(|f| f.kind.as_str()).collect();
+    LinePlot {
+        title: Some(plain(&format!(
+            "{name}: {}",
+            if found.is_empty() {
+                "nothing left out (the nominal model explains it to within its noise)".to_string()
+            } else {
+                format!("left out: {}", found.join(", "))
+            }
+        ))),
+        x: Quantity::new("t", "s"),
+        panels: vec![
+            LinePanel {
+                y: Quantity::new("D", "m"),
+                series: vec![
+                    Series::line("recorded", points(&t, &d, 0, n)).with_color(PALETTE[0]),
+                    Series::dashed("nominal", points(&t, &diag.nominal_d_m, 0, n))
+                        .with_color(PALETTE[1]),
+                    Series::dashed("extended", points(&t, &diag.final_d_m, 0, n))
+                        .with_color(PALETTE[2]),
+                ],
+                ..Default::default()
+            },
+            LinePanel {
+                y: Quantity::new("recorded − model", "m"),
+                series: vec![
+                    Series::line("nominal", points(&t, &rb, 0, n)).with_color(PALETTE[1]),
+                    Series::line("extended", points(&t, &ra, 0, n)).with_color(PALETTE[2]),
+                ],
+                ..Default::default()
+            },
+        ],
+        ..Default::default()
+    }
+}
+
+fn effect_plot(diag: &Diagnosis, k: usize, name: &str) -> LinePlot {
+    let p = &diag.problem;
+    let f = &diag.findings[k];
+    let n = p.data.len();
+    // The largest span, with a margin of its own length on each side.
+    let (a, b) = f
+        .spans
+        .iter()
+        .max_by(|x, y| x.share.total_cmp(&y.share))
+        .map(|s| {
+            let len = (s.rows.1 - s.rows.0).max(20);
+            (s.rows.0.saturating_sub(len), (s.rows.1 + len).min(n))
+        })
+        .unwrap_or((0, n));
+    let t: Vec<f64> = p.data.t.iter().map(|x| x * TIME).collect();
+    let d: Vec<f64> = p.data.d.iter().map(|x| x * LENGTH).collect();
+    let before = &diag.stages_d_m[k];
+    let after = &diag.stages_d_m[k + 1];
+    let rb: Vec<f64> = d.iter().zip(before).map(|(x, y)| x - y).collect();
+    let ra: Vec<f64> = d.iter().zip(after).map(|(x, y)| x - y).collect();
+    let label_b = if k == 0 {
+        "nominal".to_string()
+    } else {
+        format!(
+            "with {}",
+            diag.findings[..k]
+                .iter()
+                .map(|f| f.kind.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    };
+    LinePlot {
+        title: Some(plain(&format!(
+            "{name}: {}, RMS {} → {} where it acts",
+            f.kind,
+            super::explain::length(f.rms_before_m),
+            super::explain::length(f.rms_after_m)
+        ))),
+        x: Quantity::new("t", "s"),
+        panels: vec![
+            LinePanel {
+                y: Quantity::new("D", "m"),
+                series: vec![
+                    Series::line("recorded", points(&t, &d, a, b)).with_color(PALETTE[0]),
+                    Series::dashed(label_b.clone(), points(&t, before, a, b))
+                        .with_color(PALETTE[1]),
+                    Series::dashed(format!("+ {}", f.kind), points(&t, after, a, b))
+                        .with_color(PALETTE[2]),
+                ],
+                ..Default::default()
+            },
+            LinePanel {
+                y: Quantity::new("recorded − model", "m"),
+                series: vec![
+                    Series::line(format!("before ({label_b})"), points(&t, &rb, a, b))
+                        .with_color(PALETTE[1]),
+                    Series::line(format!("after (+ {})", f.kind), points(&t, &ra, a, b))
+                        .with_color(PALETTE[2]),
+                ],
+                ..Default::default()
+            },
+        ],
+        ..Default::default()
+    }
+}
+
+fn spectrum_plot(diag: &Diagnosis, name: &str) -> LinePlot {
+    let sb = &diag.located.spectrum_before;
+    let sa = &diag.located.spectrum_after;
+    let l2 = LENGTH * LENGTH;
+    let pts = |s: &super::spectrum::Spectrum| -> Vec<(f64, f64)> {
+        s.f_hz
+            .iter()
+            .zip(&s.psd)
+            .skip(1)
+            .map(|(f, p)| (*f, p * l2))
+            .collect()
+    };
+    let mut series = vec![
+        Series::line("residual, nominal", pts(sb)).with_color(PALETTE[1]),
+        Series::line("residual, extended", pts(sa)).with_color(PALETTE[2]),
+    ];
+    let lines: Vec<(f64, f64)> = diag
+        .located
+        .tests
+        .iter()
+        .filter(|t| t.group == "frequency" && t.significant)
+        .filter_map(|t| {
+            let f = t.freq_hz?;
+            let k = sb.bin(f)?;
+            Some((f, sb.psd[k] * l2))
+        })
+        .collect();
+    if !lines.is_empty() {
+        series.push(Series::markers("significant lines (locate)", lines).with_color(PALETTE[3]));
+    }
+    LinePlot {
+        title: Some(plain(&format!("{name}: residual spectrum (Welch)"))),
+        x: Quantity::new("f", "Hz"),
+        x_log: true,
+        panels: vec![LinePanel {
+            y: Quantity::new("PSD", "m²/Hz"),
+            series,
+            y_log: true,
+            ..Default::default()
+        }],
+        ..Default::default()
+    }
+}

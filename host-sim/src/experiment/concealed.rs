@@ -1,0 +1,914 @@
+//! The concealed-effect suite: recordings the project makes with its own plant, each with one
+//! effect of the vocabulary (or none) at a magnitude where D with and without it differ by
+//! only 3–10× the noise RMS — invisible in a plot of D — to prove `diagnose` names it.
+//!
+//! ## Setups
+//! Six instruments and samples, two kinds of protocol, chosen so that no one cantilever, tip,
+//! bed or rate is what the diagnosis is tuned to:
+//!
+//! | setup | cantilever | tip R | bed k_a, c_a (per area) | protocol | rate |
+//! | --- | --- | --- | --- | --- | --- |
+//! | `tap-air` | the paper's, 0.18 N/m, 20 kHz, Q 100 | 300 nm | 3×10¹¹ N/m³, 6×10⁷ N·s/m³ (the paper's cell) | tap: approach, dwell with two tones, retract | 500 kHz |
+//! | `tap-liquid` | 0.1 N/m, 12 kHz, Q 4 | 500 nm | 1×10¹¹, 2×10⁷ | tap | 200 kHz |
+//! | `tap-stiff` | 0.8 N/m, 60 kHz, Q 150 | 200 nm | 2×10¹², 1×10⁸ | tap | 1 MHz |
+//! | `curve-colloid` | 0.06 N/m, 5 kHz, Q 2 | 2.5 µm | 3×10⁸, 3×10⁵ | force curve: approach, hold, retract | 2 kHz |
+//! | `curve-soft` | 0.02 N/m, 3 kHz, Q 1.5 | 5 µm | 1×10⁸, 2×10⁵ | force curve | 5 kHz |
+//! | `curve-gel` | 0.3 N/m, 20 kHz, Q 3 | 1 µm | 3×10⁹, 1×10⁶ | force curve | 1 kHz |
+//!
+//! Every bed is the plant's lattice of discrete elements (pitch R/20, the tip at a random
+//! place in the cell), not the continuum the diagnosis models; the recordings carry the
+//! plant's thermal noise and its 16-bit ADC. Taps run the plant at the recording rate; force
+//! curves run it at 5 µs and keep every n-th sample, as a slow instrument samples a
+//! continuous lever.
+//!
+//! ## Magnitudes
+//! Each effect's shape parameters are drawn at random over a plausible range (a relaxation
+//! time from a tenth to twice the dwell, a decay length of nm to tens of nm, …); its
+//! amplitude is then calibrated, on noise-free runs, so that the largest |ΔD| between the
+//! runs with and without it is the drawn multiple (3–10, log-uniform) of the noise RMS
+//! measured on the same recording. The second eigenmode needs a tap (a force curve samples
+//! far below it).
+
+use crate::plant::effects::{EffectKind, EffectSpec};
+use crate::plant::{Cantilever, Plant, PlantConfig};
+use crate::recording::{Metadata, Mode, Recording};
+use crate::sample::Sample;
+use std::f64::consts::PI;
+
+/// One instrument + sample + protocol of the suite.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Setup {
+    pub name: &'static str,
+    pub cantilever: Cantilever,
+    pub tip_radius_m: f64,
+    /// Per-area bed spring and damper (N/m³, N·s/m³).
+    pub k_a: f64,
+    pub c_a: f64,
+    /// A tap (dynamic, at the plant's rate) or a force curve.
+    pub tap: bool,
+    /// Recording rate (Hz).
+    pub rate_hz: f64,
+    /// Indentation at the dwell (m).
+    pub depth_m: f64,
+    /// Start above the surface (m).
+    pub standoff_m: f64,
+    /// Approach / retract duration, dwell, free time before and after (s).
+    pub move_s: f64,
+    pub dwell_s: f64,
+    pub free_s: f64,
+}
+
+/// The six setups (module docs).
+pub fn setups() -> Vec<Setup> {
+    vec![
+        Setup {
+            name: "tap-air",
+            cantilever: Cantilever::PAPER,
+            tip_radius_m: 300e-9,
+            k_a: 3e11,
+            c_a: 6e7,
+            tap: true,
+            rate_hz: 500e3,
+            depth_m: 120e-9,
+            standoff_m: 60e-9,
+            move_s: 4e-3,
+            dwell_s: 12e-3,
+            free_s: 3e-3,
+        },
+        Setup {
+            name: "tap-liquid",
+            cantilever: Cantilever::from_resonance(0.1, 12e3, 4.0),
+            tip_radius_m: 500e-9,
+            k_a: 1e11,
+            c_a: 2e7,
+            tap: true,
+            rate_hz: 200e3,
+            depth_m: 150e-9,
+            standoff_m: 80e-9,
+            move_s: 8e-3,
+            dwell_s: 25e-3,
+            free_s: 5e-3,
+        },
+        Setup {
+            name: "tap-stiff",
+            cantilever: Cantilever::from_resonance(0.8, 60e3, 150.0),
+            tip_radius_m: 200e-9,
+            k_a: 2e12,
+            c_a: 1e8,
+            tap: true,
+            rate_hz: 1e6,
+            depth_m: 60e-9,
+            standoff_m: 40e-9,
+            move_s: 2e-3,
+            dwell_s: 8e-3,
+            free_s: 2e-3,
+        },
+        Setup {
+            name: "curve-colloid",
+            cantilever: Cantilever::from_resonance(0.06, 5e3, 2.0),
+            tip_radius_m: 2.5e-6,
+            k_a: 3e8,
+            c_a: 3e5,
+            tap: false,
+            rate_hz: 2e3,
+            depth_m: 600e-9,
+            standoff_m: 800e-9,
+            move_s: 0.6,
+            dwell_s: 0.5,
+            free_s: 0.15,
+        },
+        Setup {
+            name: "curve-soft",
+            cantilever: Cantilever::from_resonance(0.02, 3e3, 1.5),
+            tip_radius_m: 5e-6,
+            k_a: 1e8,
+            c_a: 2e5,
+            tap: false,
+            rate_hz: 5e3,
+            depth_m: 800e-9,
+            standoff_m: 1e-6,
+            move_s: 0.4,
+            dwell_s: 0.3,
+            free_s: 0.1,
+        },
+        Setup {
+            name: "curve-gel",
+            cantilever: Cantilever::from_resonance(0.3, 20e3, 3.0),
+            tip_radius_m: 1e-6,
+            k_a: 3e9,
+            c_a: 1e6,
+            tap: false,
+            rate_hz: 1e3,
+            depth_m: 300e-9,
+            standoff_m: 500e-9,
+            move_s: 0.8,
+            dwell_s: 1.0,
+            free_s: 0.2,
+        },
+    ]
+}
+
+/// Elements per tip radius: the bed's pitch is R/20, so that a shallow contact already spans
+/// hundreds of elements.
+const PITCH_PER_RADIUS: f64 = 20.0;
+
+/// Plant step of the force curves (s): fine enough for the lever's dynamics.
+const CURVE_PLANT_STEP_S: f64 = 5e-6;
+
+impl Setup {
+    /// Plant steps per recorded sample.
+    pub fn decimation(&self) -> usize {
+        if self.tap {
+            1
+        } else {
+            ((1.0 / self.rate_hz) / CURVE_PLANT_STEP_S).round().max(1.0) as usize
+        }
+    }
+    fn plant_step_s(&self) -> f64 {
+        1.0 / (self.rate_hz * self.decimation() as f64)
+    }
+    /// The quasi-static contact force at depth δ (N) on the bed's continuum.
+    fn force_at(&self, delta: f64) -> f64 {
+        self.k_a * crate::identify::signal::cap_volume(self.tip_radius_m, delta)
+    }
+    /// Phase boundaries (s): free, approach, dwell, retract, free.
+    pub fn times(&self) -> [f64; 5] {
+        let t1 = self.free_s;
+        let t2 = t1 + self.move_s;
+        let t3 = t2 + self.dwell_s;
+        let t4 = t3 + self.move_s;
+        [t1, t2, t3, t4, t4 + self.free_s]
+    }
+    /// The commanded U at time t (m), surface at 0: a smooth-cornered ramp down to the
+    /// depth, the dwell (a tap excites two tones, as DIVE does), the ramp back, free.
+    pub fn u_at(&self, t: f64) -> f64 {
+        let [t1, t2, t3, t4, _] = self.times();
+        let k = self.cantilever.k_n_per_m;
+        let u_top = self.standoff_m;
+        let u_bottom = -self.depth_m - self.force_at(self.depth_m) / k;
+        // Constant speed with raised-cosine starts and stops over the first and last 10 %.
+        let ramp = |s: f64| {
+            let e = 0.1;
+            let head = |s: f64| (s / 2.0 - e / (2.0 * PI) * (PI * s / e).sin()) / (1.0 - e);
+            let s = s.clamp(0.0, 1.0);
+            if s < e {
+                head(s)
+            } else if s > 1.0 - e {
+                1.0 - head(1.0 - s)
+            } else {
+                (e / 2.0 + (s - e)) / (1.0 - e)
+            }
+        };
+        let mut u = if t < t1 {
+            u_top
+        } else if t < t2 {
+            u_top + (u_bottom - u_top) * ramp((t - t1) / (t2 - t1))
+        } else if t < t3 {
+            u_bottom
+        } else if t < t4 {
+            u_bottom + (u_top - u_bottom) * ramp((t - t3) / (t4 - t3))
+        } else {
+            u_top
+        };
+        if self.tap && (t2..t3).contains(&t) {
+            // Two tones (the paper's (29)): near resonance and a quarter of it, faded in and
+            // out over 1 ms so that the dwell starts and ends at rest.
+            let f0 = self.cantilever.f0_hz();
+            let tt = t - t2;
+            let fade = (tt / 1e-3).min((t3 - t) / 1e-3).clamp(0.0, 1.0);
+            u += fade
+                * (3e-9 * (2.0 * PI * 0.9 * f0 * tt).sin()
+                    + 0.1 * self.depth_m * (2.0 * PI * 0.25 * f0 * tt).sin());
+        }
+        u
+    }
+    /// The recording's duration (s).
+    pub fn duration_s(&self) -> f64 {
+        self.times()[4]
+    }
+    fn plant_config(&self) -> PlantConfig {
+        let mut p = PlantConfig::paper();
+        p.cantilever = self.cantilever;
+        p.tip_radius_m = self.tip_radius_m;
+        p.time_step_s = self.plant_step_s();
+        let span = 4.0
+            * (self.standoff_m
+                + self.depth_m
+                + self.force_at(self.depth_m) / self.cantilever.k_n_per_m)
+            + 1e-6;
+        p.travel_z.min_m = -span;
+        p.travel_z.max_m = span;
+        p.dac_z.enabled = false;
+        p.adc_deflection.min_m = -2.5e-6;
+        p.adc_deflection.max_m = 2.5e-6;
+        p
+    }
+    fn sample(&self, offset: [f64; 2]) -> Sample {
+        let pitch = self.tip_radius_m / PITCH_PER_RADIUS;
+        let half = PITCH_PER_RADIUS as usize + 3;
+        let n = 2 * half + 1;
+        let origin = [
+            -(half as f64 * pitch) + offset[0] * pitch,
+            -(half as f64 * pitch) + offset[1] * pitch,
+        ];
+        Sample::flat(
+            n,
+            n,
+            pitch,
+            origin,
+            0.0,
+            self.c_a * pitch * pitch,
+            self.k_a * pitch * pitch,
+        )
+        .expect("a valid flat bed")
+    }
+}
+
+/// One recording of the suite.
+#[derive(Clone, Debug)]
+pub struct Scenario {
+    /// The effect (None: clean).
+    pub effect: Option<EffectKind>,
+    pub seed: u64,
+    pub setup: Setup,
+    /// The drawn multiple of the noise RMS.
+    pub target_ratio: f64,
+    /// The effect as calibrated.
+    pub spec: Option<EffectSpec>,
+    /// The largest |ΔD| over the noise RMS, as reached.
+    pub ratio: f64,
+    /// Noise RMS of D (m).
+    pub noise_m: f64,
+    /// The recording (noisy, with the effect).
+    pub recording: Recording,
+    /// The noise-free D with the effect (m): the truth a model is judged against.
+    pub truth_d_m: Vec<f64>,
+    /// The noise-free D without the effect (m).
+    pub clean_d_m: Vec<f64>,
+}
+
+/// A small deterministic generator for the draws (SplitMix64).
+struct Draw(u64);
+impl Draw {
+    fn next(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^= z >> 31;
+        (z >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn uniform(&mut self, a: f64, b: f64) -> f64 {
+        a + (b - a) * self.next()
+    }
+    fn log_uniform(&mut self, a: f64, b: f64) -> f64 {
+        (a.ln() + (b.ln() - a.ln()) * self.next()).exp()
+    }
+    fn sign(&mut self) -> f64 {
+        if self.next() < 0.5 {
+            -1.0
+        } else {
+            1.0
+        }
+    }
+}
+
+/// Runs the plant over the setup's protocol: D per recorded sample (m).
+fn run(
+    setup: &Setup,
+    sample: &Sample,
+    effect: Option<&EffectSpec>,
+    noise: bool,
+    seed: u64,
+) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let mut cfg = setup.plant_config();
+    cfg.thermal_noise = noise;
+    if !noise {
+        cfg.adc_deflection.enabled = false;
+    }
+    let mut plant = Plant::new(cfg, sample.clone(), seed).expect("a valid plant");
+    plant
+        .set_time_step(setup.plant_step_s())
+        .expect("a valid step");
+    let x0 = 0.0;
+    let y0 = 0.0;
+    plant.settle(setup.u_at(0.0), x0, y0);
+    if let Some(e) = effect {
+        plant.add_effect(e.build());
+    }
+    let dec = setup.decimation();
+    let dt = setup.plant_step_s();
+    let steps = (setup.duration_s() / dt).round() as usize;
+    let mut t_out = Vec::with_capacity(steps / dec + 1);
+    let mut u_out = Vec::with_capacity(steps / dec + 1);
+    let mut d_out = Vec::with_capacity(steps / dec + 1);
+    for j in 1..=steps {
+        let t = j as f64 * dt;
+        let u = setup.u_at(t);
+        let d = plant.step(u, x0, y0);
+        if j % dec == 0 {
+            t_out.push(t);
+            u_out.push(u);
+            d_out.push(d);
+        }
+    }
+    (t_out, u_out, d_out)
+}
+
+/// The largest |a − b|.
+fn peak_difference(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
+/// Draws the effect's shape for this setup and builds its spec at amplitude `a` (the one
+/// number the calibration scales).
+fn effect_spec(kind: EffectKind, setup: &Setup, shape: &[f64], a: f64) -> EffectSpec {
+    match kind {
+        EffectKind::NonlinearStiffness => EffectSpec::NonlinearStiffness {
+            exponent_change: shape[0] * a,
+            reference_depth_m: setup.depth_m,
+        },
+        EffectKind::Adhesion => EffectSpec::Adhesion {
+            force_n: a,
+            reach_m: shape[0],
+        },
+        EffectKind::SurfaceAttraction => EffectSpec::SurfaceAttraction {
+            force_n: a,
+            decay_length_m: shape[0],
+        },
+        EffectKind::StressRelaxation => EffectSpec::StressRelaxation {
+            arms: vec![(a, shape[0])],
+        },
+        EffectKind::HydrodynamicDrag => EffectSpec::HydrodynamicDrag {
+            drag_ns_per_m: a,
+            base_fraction: shape[0],
+        },
+        EffectKind::BaselineTilt => EffectSpec::BaselineTilt {
+            tilt: shape[0] * a,
+            u_ref_m: setup.u_at(0.0),
+        },
+        EffectKind::ThermalDrift => EffectSpec::ThermalDrift {
+            rate_m_per_s: shape[0] * a,
+            t_ref_s: 0.0,
+        },
+        EffectKind::SecondEigenmode => EffectSpec::SecondEigenmode {
+            f_hz: shape[0],
+            q: shape[1],
+            gain: shape[2] * a,
+            base_gain: shape[3] * a,
+            k_n_per_m: setup.cantilever.k_n_per_m,
+        },
+        EffectKind::PiezoCreep => EffectSpec::PiezoCreep {
+            fraction: a,
+            tau_s: shape[0],
+        },
+        EffectKind::PlasticDeformation => EffectSpec::PlasticDeformation { fraction: a },
+    }
+}
+
+/// The shape draw and a starting amplitude for `kind` on `setup`.
+fn draw_shape(kind: EffectKind, setup: &Setup, r: &mut Draw) -> (Vec<f64>, f64) {
+    let k = setup.cantilever.k_n_per_m;
+    let f_scale = setup.force_at(setup.depth_m).max(1e-12);
+    let f0 = setup.cantilever.f0_hz();
+    match kind {
+        EffectKind::NonlinearStiffness => (vec![r.sign()], 0.2),
+        EffectKind::Adhesion => (vec![r.uniform(0.0, 0.4) * setup.depth_m], 0.02 * f_scale),
+        EffectKind::SurfaceAttraction => {
+            let lam = if setup.tap {
+                r.log_uniform(3e-9, 20e-9)
+            } else {
+                r.log_uniform(10e-9, 100e-9)
+            };
+            (vec![lam], 0.02 * f_scale)
+        }
+        EffectKind::StressRelaxation => (vec![r.log_uniform(0.1, 2.0) * setup.dwell_s], 0.05),
+        EffectKind::HydrodynamicDrag => {
+            let w = [0.0, 1.0, 0.3][(r.next() * 3.0) as usize % 3];
+            let v = (setup.standoff_m + setup.depth_m) / setup.move_s;
+            (vec![w], 0.05 * k * 1e-9 / v.max(1e-12))
+        }
+        EffectKind::BaselineTilt => (vec![r.sign()], 1e-3),
+        EffectKind::ThermalDrift => (vec![r.sign()], 1e-9 / setup.duration_s()),
+        EffectKind::SecondEigenmode => {
+            let q = if setup.cantilever_q() > 20.0 {
+                r.log_uniform(30.0, 300.0)
+            } else {
+                r.log_uniform(3.0, 15.0)
+            };
+            // Rung by the base (the gain calibrated) and, a fifth as much, by the tip force.
+            let sign = r.sign();
+            (
+                vec![
+                    r.uniform(5.8, 6.8) * f0,
+                    q,
+                    sign * r.uniform(-0.2, 0.2),
+                    sign,
+                ],
+                0.05,
+            )
+        }
+        EffectKind::PiezoCreep => (
+            vec![r.log_uniform(0.1, 1.0) * (setup.move_s + setup.dwell_s)],
+            0.02,
+        ),
+        EffectKind::PlasticDeformation => (vec![], 0.02),
+    }
+}
+
+trait Q {
+    fn cantilever_q(&self) -> f64;
+}
+impl Q for Setup {
+    fn cantilever_q(&self) -> f64 {
+        let c = &self.cantilever;
+        (c.k_n_per_m * c.m_kg).sqrt() / c.c_ns_per_m
+    }
+}
+
+/// Upper bound of each calibrated amplitude (a physical limit).
+fn amplitude_max(kind: EffectKind) -> f64 {
+    match kind {
+        EffectKind::NonlinearStiffness => 2.0,
+        EffectKind::PiezoCreep => crate::diagnose::candidates::PIEZO_CREEP_MAX,
+        EffectKind::PlasticDeformation => 0.9,
+        _ => f64::INFINITY,
+    }
+}
+
+/// Builds scenario `seed` with `effect` (None: clean).
+pub fn scenario(effect: Option<EffectKind>, seed: u64) -> Scenario {
+    let all = setups();
+    let mut r = Draw(seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ effect.map_or(0, |k| k as u64 + 1));
+    let taps: Vec<&Setup> = all.iter().filter(|s| s.tap).collect();
+    let setup = if effect == Some(EffectKind::SecondEigenmode) {
+        taps[(seed as usize) % taps.len()].clone()
+    } else {
+        all[(seed as usize) % all.len()].clone()
+    };
+    let offset = [r.next(), r.next()];
+    let sample = setup.sample(offset);
+    let target = r.log_uniform(3.0, 10.0);
+    let noise_seed = seed.wrapping_mul(7919).wrapping_add(17);
+    let (t, u, clean) = run(&setup, &sample, None, false, noise_seed);
+    let (_, _, noisy_clean) = run(&setup, &sample, None, true, noise_seed);
+    let noise_m = crate::identify::signal::rms(noisy_clean.iter().zip(&clean).map(|(a, b)| a - b));
+    let (spec, ratio, truth, d_rec) = match effect {
+        None => (None, 0.0, clean.clone(), noisy_clean),
+        Some(kind) => {
+            let (shape, mut a) = draw_shape(kind, &setup, &mut r);
+            let a_max = amplitude_max(kind);
+            let want = target * noise_m;
+            let mut best = (f64::INFINITY, a, 0.0);
+            for _ in 0..12 {
+                let spec = effect_spec(kind, &setup, &shape, a);
+                let (_, _, d) = run(&setup, &sample, Some(&spec), false, noise_seed);
+                let p = peak_difference(&d, &clean);
+                let err = (p / want).ln().abs();
+                if err < best.0 {
+                    best = (err, a, p);
+                }
+                if err < 0.03 {
+                    break;
+                }
+                let next = if p > 0.0 { a * want / p } else { a * 10.0 };
+                // Damped secant: the response is close to linear in the amplitude.
+                a = (a * (next / a).clamp(0.1, 10.0)).min(a_max);
+            }
+            let a = best.1;
+            let spec = effect_spec(kind, &setup, &shape, a);
+            let (_, _, truth) = run(&setup, &sample, Some(&spec), false, noise_seed);
+            let (_, _, d_rec) = run(&setup, &sample, Some(&spec), true, noise_seed);
+            let ratio = peak_difference(&truth, &clean) / noise_m;
+            (Some(spec), ratio, truth, d_rec)
+        }
+    };
+    let mode = if setup.tap {
+        Mode::Dive
+    } else {
+        Mode::ForceCurve
+    };
+    let c = &setup.cantilever;
+    let mut meta = Metadata::new(mode, setup.rate_hz, c.k_n_per_m, setup.tip_radius_m);
+    if setup.tap {
+        meta.cantilever_m_kg = Some(c.m_kg);
+        meta.cantilever_c_ns_per_m = Some(c.c_ns_per_m);
+    } else {
+        // Force curves, as commercial files: the resonance and Q, not M and C.
+        meta.cantilever_f0_hz = Some(c.f0_hz());
+        meta.cantilever_q = Some(setup.cantilever_q());
+    }
+    meta.set(
+        "source",
+        format!(
+            "visco concealed-effect suite: setup {}, seed {seed}",
+            setup.name
+        ),
+    );
+    let mut rec = Recording::new(meta);
+    rec.t_s = t;
+    rec.u_m = u;
+    rec.d_m = d_rec;
+    Scenario {
+        effect,
+        seed,
+        setup,
+        target_ratio: target,
+        spec,
+        ratio,
+        noise_m,
+        recording: rec,
+        truth_d_m: truth,
+        clean_d_m: clean,
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Running the suite
+// ---------------------------------------------------------------------------------------
+
+/// One recording of the suite, diagnosed.
+#[derive(Clone, Debug)]
+pub struct SuiteRow {
+    /// The effect concealed (None: clean).
+    pub effect: Option<EffectKind>,
+    pub seed: u64,
+    pub setup: &'static str,
+    /// Largest |ΔD| over the noise RMS, as generated.
+    pub ratio: f64,
+    pub noise_m: f64,
+    /// What the diagnosis named, in order.
+    pub named: Vec<EffectKind>,
+    /// Held-out RMS of recorded − simulated D, nominal and final (m).
+    pub rms_before_m: f64,
+    pub rms_after_m: f64,
+    /// Held-out RMS of the model against the noise-free truth (m): the systematic misfit
+    /// the noise hides, nominal and final.
+    pub truth_error_before_m: f64,
+    pub truth_error_after_m: f64,
+    /// Held-out RMS over the first finding's located spans, before and after it (m).
+    pub span_rms_before_m: f64,
+    pub span_rms_after_m: f64,
+    /// Wall time of the diagnosis (s).
+    pub wall_s: f64,
+}
+
+impl SuiteRow {
+    /// The top-1 name, or None.
+    pub fn top(&self) -> Option<EffectKind> {
+        self.named.first().copied()
+    }
+    /// Whether the top-1 is right (for clean recordings: nothing named).
+    pub fn correct(&self) -> bool {
+        self.top() == self.effect
+    }
+}
+
+/// The suite's outcome: every row and the summary.
+#[derive(Clone, Debug)]
+pub struct SuiteReport {
+    pub rows: Vec<SuiteRow>,
+    pub seeds: u64,
+    pub alpha: f64,
+}
+
+/// Diagnoses scenario `(effect, seed)`.
+pub fn diagnose_scenario(
+    effect: Option<EffectKind>,
+    seed: u64,
+    opts: &crate::diagnose::search::SearchOptions,
+) -> SuiteRow {
+    let sc = scenario(effect, seed);
+    let t = std::time::Instant::now();
+    let row = match crate::diagnose::report::analyse(&sc.recording, opts, |_| {}) {
+        Ok(d) => {
+            let held = &d.problem.held;
+            let rms = |a: &[f64], b: &[f64], mask: &dyn Fn(usize) -> bool| {
+                let (mut s, mut n) = (0.0, 0usize);
+                for i in 0..a.len() {
+                    if held[i] && mask(i) {
+                        s += (a[i] - b[i]).powi(2);
+                        n += 1;
+                    }
+                }
+                if n == 0 {
+                    f64::NAN
+                } else {
+                    (s / n as f64).sqrt()
+                }
+            };
+            let all = |_: usize| true;
+            let (sb, sa) = match d.findings.first() {
+                Some(f) => (f.rms_before_m, f.rms_after_m),
+                None => (f64::NAN, f64::NAN),
+            };
+            SuiteRow {
+                effect,
+                seed,
+                setup: sc.setup.name,
+                ratio: sc.ratio,
+                noise_m: sc.noise_m,
+                named: d.findings.iter().map(|f| f.kind).collect(),
+                rms_before_m: d.rms_before_m,
+                rms_after_m: d.rms_after_m,
+                truth_error_before_m: rms(&d.nominal_d_m, &sc.truth_d_m, &all),
+                truth_error_after_m: rms(&d.final_d_m, &sc.truth_d_m, &all),
+                span_rms_before_m: sb,
+                span_rms_after_m: sa,
+                wall_s: 0.0,
+            }
+        }
+        Err(_) => SuiteRow {
+            effect,
+            seed,
+            setup: sc.setup.name,
+            ratio: sc.ratio,
+            noise_m: sc.noise_m,
+            named: Vec::new(),
+            rms_before_m: f64::NAN,
+            rms_after_m: f64::NAN,
+            truth_error_before_m: f64::NAN,
+            truth_error_after_m: f64::NAN,
+            span_rms_before_m: f64::NAN,
+            span_rms_after_m: f64::NAN,
+            wall_s: 0.0,
+        },
+    };
+    SuiteRow {
+        wall_s: t.elapsed().as_secs_f64(),
+        ..row
+    }
+}
+
+/// Runs `seeds` recordings per effect and `seeds` clean ones on `threads` threads;
+/// `progress(done, total, row)` after each.
+pub fn run_suite(
+    seeds: u64,
+    threads: usize,
+    opts: &crate::diagnose::search::SearchOptions,
+    progress: &(dyn Fn(usize, usize, &SuiteRow) + Sync),
+) -> SuiteReport {
+    let seed_list: Vec<u64> = (0..seeds).collect();
+    let mut report = run_seeds(&seed_list, threads, opts, progress);
+    report.seeds = seeds;
+    report
+}
+
+/// [`run_suite`] over the given seeds of every class.
+pub fn run_seeds(
+    seeds: &[u64],
+    threads: usize,
+    opts: &crate::diagnose::search::SearchOptions,
+    progress: &(dyn Fn(usize, usize, &SuiteRow) + Sync),
+) -> SuiteReport {
+    let mut jobs: Vec<(Option<EffectKind>, u64)> = Vec::new();
+    for &seed in seeds {
+        jobs.push((None, seed));
+        for k in EffectKind::ALL {
+            jobs.push((Some(k), seed));
+        }
+    }
+    let total = jobs.len();
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let rows = std::sync::Mutex::new(Vec::with_capacity(total));
+    std::thread::scope(|s| {
+        for _ in 0..threads.max(1) {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(&(effect, seed)) = jobs.get(i) else {
+                    break;
+                };
+                let row = diagnose_scenario(effect, seed, opts);
+                let mut r = rows.lock().unwrap_or_else(|e| e.into_inner());
+                r.push((i, row.clone()));
+                progress(r.len(), total, &row);
+            });
+        }
+    });
+    let mut rows = rows.into_inner().unwrap_or_else(|e| e.into_inner());
+    rows.sort_by_key(|(i, _)| *i);
+    SuiteReport {
+        rows: rows.into_iter().map(|(_, r)| r).collect(),
+        seeds: seeds.len() as u64,
+        alpha: opts.alpha,
+    }
+}
+
+/// Labels of the confusion matrix: the ten effects, then "clean" / "nothing".
+fn label(k: Option<EffectKind>) -> &'static str {
+    k.map_or("nothing", |k| k.as_str())
+}
+
+impl SuiteReport {
+    /// Top-1 accuracy over the recordings with an effect.
+    pub fn top1_accuracy(&self) -> f64 {
+        let with: Vec<&SuiteRow> = self.rows.iter().filter(|r| r.effect.is_some()).collect();
+        with.iter().filter(|r| r.correct()).count() as f64 / with.len().max(1) as f64
+    }
+    /// Fraction of clean recordings where anything was named.
+    pub fn false_alarm_rate(&self) -> f64 {
+        let clean: Vec<&SuiteRow> = self.rows.iter().filter(|r| r.effect.is_none()).collect();
+        clean.iter().filter(|r| !r.named.is_empty()).count() as f64 / clean.len().max(1) as f64
+    }
+    /// Per effect: (recordings, right, median cut of the systematic error, share of right
+    /// ones with a cut ≥ 2, median cut of the held-out RMS over the located span).
+    pub fn per_effect(&self) -> Vec<(EffectKind, usize, usize, f64, f64, f64)> {
+        EffectKind::ALL
+            .iter()
+            .map(|&k| {
+                let rows: Vec<&SuiteRow> =
+                    self.rows.iter().filter(|r| r.effect == Some(k)).collect();
+                let right: Vec<&SuiteRow> = rows.iter().copied().filter(|r| r.correct()).collect();
+                let cuts: Vec<f64> = right
+                    .iter()
+                    .map(|r| r.truth_error_before_m / r.truth_error_after_m)
+                    .filter(|c| c.is_finite())
+                    .collect();
+                let spans: Vec<f64> = right
+                    .iter()
+                    .map(|r| r.span_rms_before_m / r.span_rms_after_m)
+                    .filter(|c| c.is_finite())
+                    .collect();
+                let two =
+                    cuts.iter().filter(|&&c| c >= 2.0).count() as f64 / cuts.len().max(1) as f64;
+                (
+                    k,
+                    rows.len(),
+                    right.len(),
+                    crate::identify::signal::median(&cuts),
+                    two,
+                    crate::identify::signal::median(&spans),
+                )
+            })
+            .collect()
+    }
+
+    /// The confusion matrix (rows: concealed; columns: named first) as a Markdown table.
+    pub fn confusion_markdown(&self) -> String {
+        let mut cols: Vec<Option<EffectKind>> = EffectKind::ALL.iter().map(|k| Some(*k)).collect();
+        cols.push(None);
+        let abbrev = |k: Option<EffectKind>| -> String {
+            match k {
+                None => "none".into(),
+                Some(k) => k
+                    .as_str()
+                    .split('-')
+                    .map(|w| w.chars().next().unwrap_or('?'))
+                    .collect::<String>()
+                    .to_uppercase(),
+            }
+        };
+        let mut s = String::from("| concealed \\ named | ");
+        s.push_str(
+            &cols
+                .iter()
+                .map(|c| abbrev(*c))
+                .collect::<Vec<_>>()
+                .join(" | "),
+        );
+        s.push_str(" |\n|---|");
+        s.push_str(&"---|".repeat(cols.len()));
+        s.push('\n');
+        let mut rows_k: Vec<Option<EffectKind>> =
+            EffectKind::ALL.iter().map(|k| Some(*k)).collect();
+        rows_k.push(None);
+        for rk in rows_k {
+            s.push_str(&format!(
+                "| {} | ",
+                if rk.is_none() { "clean" } else { label(rk) }
+            ));
+            let cells: Vec<String> = cols
+                .iter()
+                .map(|ck| {
+                    let n = self
+                        .rows
+                        .iter()
+                        .filter(|r| r.effect == rk && r.top() == *ck)
+                        .count();
+                    if n == 0 {
+                        "·".to_string()
+                    } else if rk == *ck {
+                        format!("**{n}**")
+                    } else {
+                        n.to_string()
+                    }
+                })
+                .collect();
+            s.push_str(&cells.join(" | "));
+            s.push_str(" |\n");
+        }
+        s
+    }
+
+    /// The summary as JSON, with every row.
+    pub fn to_json(&self) -> crate::identify::json::Json {
+        use crate::identify::json::Json;
+        let rows: Vec<Json> = self
+            .rows
+            .iter()
+            .map(|r| {
+                Json::obj()
+                    .with("concealed", label(r.effect))
+                    .with("seed", r.seed)
+                    .with("setup", r.setup)
+                    .with("peak_difference_over_noise", r.ratio)
+                    .with("noise_rms_m", r.noise_m)
+                    .with(
+                        "named",
+                        Json::Arr(r.named.iter().map(|k| Json::from(k.as_str())).collect()),
+                    )
+                    .with("correct", r.correct())
+                    .with("rms_before_m", r.rms_before_m)
+                    .with("rms_after_m", r.rms_after_m)
+                    .with("truth_error_before_m", r.truth_error_before_m)
+                    .with("truth_error_after_m", r.truth_error_after_m)
+                    .with("span_rms_before_m", r.span_rms_before_m)
+                    .with("span_rms_after_m", r.span_rms_after_m)
+                    .with("wall_s", r.wall_s)
+            })
+            .collect();
+        let per: Vec<Json> = self
+            .per_effect()
+            .into_iter()
+            .map(|(k, n, right, cut, two, span)| {
+                Json::obj()
+                    .with("effect", k.as_str())
+                    .with("recordings", n)
+                    .with("named_first", right)
+                    .with("median_truth_error_cut", cut)
+                    .with("share_cut_at_least_2", two)
+                    .with("median_span_rms_cut", span)
+            })
+            .collect();
+        Json::obj()
+            .with("seeds_per_class", self.seeds)
+            .with("alpha", self.alpha)
+            .with("top1_accuracy", self.top1_accuracy())
+            .with("false_alarm_rate", self.false_alarm_rate())
+            .with("per_effect", Json::Arr(per))
+            .with("confusion_markdown", self.confusion_markdown())
+            .with(
+                "definitions",
+                Json::obj()
+                    .with(
+                        "peak_difference_over_noise",
+                        "largest |D with − D without the effect| (noise-free runs) over the \
+                         recording's noise RMS; drawn log-uniform in 3–10",
+                    )
+                    .with(
+                        "truth_error",
+                        "held-out RMS of the model's D against the noise-free D with the \
+                         effect: the systematic misfit the noise hides",
+                    )
+                    .with(
+                        "span_rms",
+                        "held-out RMS of recorded − model over where the first finding acts, \
+                         before and after it",
+                    ),
+            )
+            .with("rows", Json::Arr(rows))
+    }
+}

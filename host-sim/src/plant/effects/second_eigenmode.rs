@@ -1,0 +1,105 @@
+//! `second-eigenmode`: the cantilever's second flexural mode (about 6.27 × f₀ for a uniform
+//! beam) is excited.
+//!
+//! The first-mode model lumps every mode's static compliance into K; what it misses is the
+//! second mode's own dynamics, `H₂(s) = ω₂²/(s² + (ω₂/Q₂)·s + ω₂²)`. The mode is driven two
+//! ways, each with its own gain in the detector's reading:
+//!
+//! * by the tip force: the detector adds `g_F·(H₂ − 1)·F_ts/K` (the dynamic part only: its
+//!   static share is already in K) — a ring after every sharp change of the tip force;
+//! * by the base's motion (the piezo shakes the lever's clamp): relative to the base the mode
+//!   follows `s²/(s² + (ω₂/Q₂)s + ω₂²)·U` — every step of a DAC's staircase, every jerk of
+//!   the piezo rings it — and the detector adds `g_U` times that.
+//!
+//! Both are filters of what the recording and the model know (U) or compute (F_ts), so the
+//! ring is predicted sample by sample, and decays over `Q₂/(π f₂)`. The gains are the mode's
+//! optical-lever sensitivity relative to the first mode's (≈ 0.3 for an ideal beam) times its
+//! participation in each drive.
+
+use super::{Effect, EffectContext};
+use crate::plant::linear::Propagator;
+
+/// See the module docs. Internal units (µs, nN, nm).
+#[derive(Clone, Debug)]
+pub struct SecondEigenmode {
+    w: f64,
+    w2: f64,
+    damping: f64,
+    q: f64,
+    gain_force: f64,
+    gain_base: f64,
+    inv_k: f64,
+    /// Force-driven mode (q nm, q̇ nm/µs, drive at the last step's end), base-driven mode
+    /// (p nm, ṗ nm/µs).
+    state: Option<[f64; 5]>,
+    prop: (f64, Propagator),
+}
+
+impl SecondEigenmode {
+    /// Frequency (MHz, 1/µs), quality factor, gains on the tip force and on the base motion,
+    /// cantilever stiffness K (nN/nm).
+    pub fn new(f_mhz: f64, q: f64, gain_force: f64, gain_base: f64, k_cant: f64) -> Self {
+        let w = 2.0 * std::f64::consts::PI * f_mhz;
+        let q = q.max(1e-3);
+        SecondEigenmode {
+            w,
+            w2: w * w,
+            damping: w / q,
+            q,
+            gain_force,
+            gain_base,
+            inv_k: 1.0 / k_cant,
+            state: None,
+            prop: (f64::NAN, Propagator::default()),
+        }
+    }
+
+    fn propagator(&self, dt: f64) -> Propagator {
+        if self.prop.0 == dt {
+            self.prop.1
+        } else {
+            Propagator::new(1.0, self.damping, self.w2, dt)
+        }
+    }
+
+    /// The modes' states at the end of the step of `ctx`: the force drive held at the mean of
+    /// the step's end values (second order), the base held at the period's U (as the DAC).
+    fn advanced(&self, ctx: &EffectContext) -> [f64; 5] {
+        let x = ctx.contact_force_nn * self.inv_k;
+        match self.state {
+            None => [x, 0.0, x, ctx.u_nm, 0.0],
+            Some([q, v, x0, pb, vb]) => {
+                let pr = self.propagator(ctx.dt_us);
+                let (q1, v1) = pr.apply(q, v, 0.5 * (x0 + x));
+                let (p1, w1) = pr.apply(pb, vb, ctx.u_nm);
+                [q1, v1, x, p1, w1]
+            }
+        }
+    }
+
+    /// The reading's addition for a state.
+    fn reading(&self, s: &[f64; 5], u: f64) -> f64 {
+        // Base drive: s²/(s² + (ω₂/Q₂)s + ω₂²)·U = U − p − ṗ/(Q₂ω₂) with p = H₂·U.
+        let base = u - s[3] - s[4] / (self.q * self.w);
+        self.gain_force * (s[0] - s[2]) + self.gain_base * base
+    }
+}
+
+impl Effect for SecondEigenmode {
+    fn name(&self) -> &str {
+        "second-eigenmode"
+    }
+    fn measured_deflection_nm(&self, ctx: &EffectContext, d_nm: f64) -> f64 {
+        let s = self.advanced(ctx);
+        d_nm + self.reading(&s, ctx.u_nm)
+    }
+    fn end_of_step(&mut self, ctx: &EffectContext) {
+        if self.prop.0 != ctx.dt_us {
+            self.prop = (
+                ctx.dt_us,
+                Propagator::new(1.0, self.damping, self.w2, ctx.dt_us),
+            );
+        }
+        self.state = Some(self.advanced(ctx));
+    }
+}
