@@ -92,6 +92,7 @@ fn adhesion_holds_until_its_reach_then_lets_go() {
         Some(EffectSpec::Adhesion {
             force_n: f_a,
             reach_m: reach,
+            unloading_only: false,
         }),
         -30e-9,
     );
@@ -123,6 +124,44 @@ fn adhesion_holds_until_its_reach_then_lets_go() {
         (z_release - reach).abs() < 0.2e-9,
         "released at {z_release}"
     );
+}
+
+/// Acting only once the contact unloads, the pull is absent while the tip presses in and
+/// holds, and holds it (D = F_a/K) after the bed lets go on the retract.
+#[test]
+fn adhesion_on_unloading_spares_the_approach() {
+    let f_a = 0.5e-9;
+    let run = |effect: Option<EffectSpec>| -> Vec<f64> {
+        let mut p = plant(bed(3e11, 6e7), effect, 50e-9);
+        let mut out = Vec::new();
+        // In at 20 µm/s to 40 nm of U below the surface, hold 2 ms, out at 20 µm/s.
+        for k in 0..4500 {
+            out.push(p.step(50e-9 - 0.02e-9 * k as f64, 0.0, 0.0));
+        }
+        for _ in 0..2000 {
+            out.push(p.step(-40e-9, 0.0, 0.0));
+        }
+        for k in 0..4000 {
+            out.push(p.step(-40e-9 + 0.02e-9 * k as f64, 0.0, 0.0));
+        }
+        out
+    };
+    let plain = run(None);
+    let pulled = run(Some(EffectSpec::Adhesion {
+        force_n: f_a,
+        reach_m: 10e-9,
+        unloading_only: true,
+    }));
+    let diff: Vec<f64> = pulled.iter().zip(&plain).map(|(a, b)| a - b).collect();
+    // Approach and hold: untouched.
+    assert!(
+        diff[..6500].iter().all(|d| d.abs() < 1e-15),
+        "{}",
+        diff[..6500].iter().fold(0.0f64, |a, b| a.max(b.abs()))
+    );
+    // Retract, out of the bed but within the reach: held at F_a/K.
+    let held = diff[6500..].iter().fold(0.0f64, |a, b| a.max(*b));
+    assert!((held / (f_a / K) - 1.0).abs() < 0.02, "{held}");
 }
 
 /// Above the surface at rest, the tip feels −F_s·e^{−s/λ}: the lever bends by that over K.

@@ -99,6 +99,9 @@ pub struct Candidate {
 /// for other physics.
 pub const PIEZO_CREEP_MAX: f64 = 0.25;
 
+/// Largest |gain| of a second mode in the reading.
+const GAIN_MAX: f64 = 3.0;
+
 /// `n` points spaced logarithmically from `a` to `b`.
 pub fn log_grid(a: f64, b: f64, n: usize) -> Vec<f64> {
     if n <= 1 || !(b > a) {
@@ -137,6 +140,12 @@ impl Candidate {
                         g.extend(log_grid(len_lo, len_hi, 11));
                         g
                     },
+                    false,
+                ),
+                // From the touch (0) or only once the contact unloads (1).
+                EffectParam::shape(
+                    Param::linear("on_unloading_only", 0.0, 0.0, 1.0, 1.0),
+                    vec![0.0, 1.0],
                     false,
                 ),
             ],
@@ -248,13 +257,16 @@ impl Candidate {
                 }
                 f_grid.sort_by(f64::total_cmp);
                 vec![
+                    // Optical-lever gains of a second mode stay below one (0.3 for an ideal
+                    // beam); ±3 leaves room for a strongly coupled mode, not for a mode
+                    // standing in for something else.
                     EffectParam::amplitude(
-                        Param::linear("force_gain", 0.0, -10.0, 10.0, 0.05),
+                        Param::linear("force_gain", 0.0, -GAIN_MAX, GAIN_MAX, 0.05),
                         0.05,
                         false,
                     ),
                     EffectParam::amplitude(
-                        Param::linear("base_gain", 0.0, -10.0, 10.0, 0.05),
+                        Param::linear("base_gain", 0.0, -GAIN_MAX, GAIN_MAX, 0.05),
                         0.05,
                         false,
                     ),
@@ -303,6 +315,7 @@ impl Candidate {
             EffectKind::Adhesion => EffectSpec::Adhesion {
                 force_n: v[0],
                 reach_m: v[1],
+                unloading_only: v[2] > 0.5,
             },
             EffectKind::SurfaceAttraction => EffectSpec::SurfaceAttraction {
                 force_n: v[0],

@@ -78,10 +78,14 @@ pub fn explain(kind: EffectKind, v: &[f64], env: &Env, spans: &[Span], peak_m: f
             )
         }
         EffectKind::Adhesion => format!(
-            "an attractive force of {} acts from the first touch until the tip is {} out of \
-             the sample on retract, then lets go (adhesion; pull-off jump of {} in D); \
-             {size}{w}",
+            "an attractive force of {} acts {} until the tip is {} out of the sample on \
+             retract, then lets go (adhesion; pull-off jump of up to {} in D); {size}{w}",
             force(v[0]),
+            if v[2] > 0.5 {
+                "once the contact unloads (bonds or tethers resisting separation)"
+            } else {
+                "from the first touch"
+            },
             length(v[1]),
             length(v[0] / env.k_n_per_m),
         ),

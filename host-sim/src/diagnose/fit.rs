@@ -62,7 +62,7 @@ impl Param {
             v / self.scale
         }
     }
-    fn from_x(&self, x: f64) -> f64 {
+    fn value_at(&self, x: f64) -> f64 {
         let v = if self.log {
             (x * self.scale).exp()
         } else {
@@ -150,10 +150,10 @@ pub fn levenberg_marquardt(
             let x0 = p.to_x(p.value);
             // Step away from the nearer bound so the probe stays inside.
             let mut h = opts.step;
-            let mut probe = p.from_x(x0 + h);
+            let mut probe = p.value_at(x0 + h);
             if probe == p.value {
                 h = -h;
-                probe = p.from_x(x0 + h);
+                probe = p.value_at(x0 + h);
             }
             let mut trial = values(params);
             trial[i] = probe;
@@ -196,7 +196,7 @@ pub fn levenberg_marquardt(
             let mut trial_params = params.to_vec();
             for (k, &i) in free.iter().enumerate() {
                 let p = &trial_params[i];
-                let v = p.from_x(p.to_x(p.value) + delta[k]);
+                let v = p.value_at(p.to_x(p.value) + delta[k]);
                 trial_params[i].value = v;
             }
             evaluations += 1;
@@ -246,8 +246,9 @@ pub fn solve(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
         for row in col + 1..n {
             let f = a[row][col] / a[col][col];
             if f != 0.0 {
-                for k in col..n {
-                    a[row][k] -= f * a[col][k];
+                let (top, bottom) = a.split_at_mut(row);
+                for (x, &y) in bottom[0][col..n].iter_mut().zip(&top[col][col..n]) {
+                    *x -= f * y;
                 }
                 b[row] -= f * b[col];
             }

@@ -2,12 +2,14 @@
 //! units (taps, curves) that each get their own contact, the fit and held-out samples, and
 //! the nominal model's starting point.
 //!
-//! **Fit and held-out samples.** The recording is cut into blocks of equal length (512 of
-//! them, at least 4 samples each) and every other block is held out. Interleaving keeps every
-//! phase (approach, dwell, retract) in both halves, and blocks this short split even a brief
-//! event (a pull-off, a ring) between them, so a model fitted on one half is judged on the
-//! same physics in the other; the whitened residuals of the two halves are independent
-//! (`noise`), which is what makes the held-out test valid.
+//! **Fit and held-out samples.** The recording is cut into blocks of two samples and every
+//! other block is held out. Interleaving this finely keeps every phase (approach, dwell,
+//! retract) in both halves and pins even an event's timing (a pull-off, a ring) from the fit
+//! half to within a sample — with longer blocks, the timing of a pull-off inside a held-out
+//! block is free for the fit and wrong for the test. The halves are still independent where
+//! it matters: the tests compare the *whitened* residuals, which are independent samples when
+//! the noise model is right (`noise`), and a fitted model of a few parameters cannot follow
+//! the noise of single samples.
 //!
 //! **Starting point.** From the data alone, quasi-statically: the free deflection's level from
 //! the start of the recording, the force `−K·(D − d₀)` smoothed over the excitation, its
@@ -20,8 +22,8 @@ use crate::identify::signal::{median, minimize, moving_average, robust_sigma, tw
 use crate::recording::Recording;
 use visco_core::units::{DAMPING, LENGTH, MASS, TIME};
 
-/// Blocks of the fit/held-out interleave.
-pub const BLOCKS: usize = 512;
+/// Samples per block of the fit/held-out interleave.
+pub const BLOCK: usize = 2;
 
 /// A dynamic model needs the resonance sampled at least this many times per period.
 pub const DYNAMIC_SAMPLES_PER_PERIOD: f64 = 4.0;
@@ -162,7 +164,7 @@ impl Problem {
             m: m_int,
             r_tip: meta.tip_radius_m / LENGTH,
         };
-        let block = n.div_ceil(BLOCKS).max(4);
+        let block = BLOCK;
         let fit: Vec<bool> = (0..n).map(|i| (i / block) % 2 == 0).collect();
         let held = fit.iter().map(|f| !f).collect();
         Ok(Problem {
@@ -215,9 +217,9 @@ impl Problem {
             let tm = d.t[..head].iter().sum::<f64>() / m;
             let dm = ds[..head].iter().sum::<f64>() / m;
             let (mut stt, mut std) = (0.0, 0.0);
-            for i in 0..head {
-                stt += (d.t[i] - tm) * (d.t[i] - tm);
-                std += (d.t[i] - tm) * (ds[i] - dm);
+            for (t, x) in d.t[..head].iter().zip(&ds[..head]) {
+                stt += (t - tm) * (t - tm);
+                std += (t - tm) * (x - dm);
             }
             let slope = if stt > 0.0 { std / stt } else { 0.0 };
             let dev: Vec<f64> = (0..head)

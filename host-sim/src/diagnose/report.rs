@@ -15,7 +15,7 @@ use super::explain::explain;
 use super::locate::{locate, phases, spans, Located, Phase, Span};
 use super::model::Trace;
 use super::noise::HeldOut;
-use super::problem::{Problem, BLOCKS};
+use super::problem::{Problem, BLOCK};
 use super::search::{c_a_si, k_a_si, Search, SearchOptions, DETECTION_FLOOR};
 use crate::identify::error::{IdentifyError, Result};
 use crate::identify::figures::plain;
@@ -93,6 +93,8 @@ pub struct Finding {
     /// Its largest contribution to D and the noise it was compared with (m).
     pub peak_m: f64,
     pub noise_m: f64,
+    /// Per phase where it acts: held-out RMS before and after it joined the model (m).
+    pub phases: Vec<(Phase, f64, f64)>,
 }
 
 /// The result of [`analyse`].
@@ -156,14 +158,13 @@ pub fn analyse(
         &search.nominal_noise,
         opts.alpha,
     );
+    // Held-out RMS of a residual in nm, over the samples `idx` selects, in metres.
     let held_rms = |r: &[f64], idx: &dyn Fn(usize) -> bool| {
-        let (mut s, mut n) = (0.0, 0usize);
-        for i in 0..r.len() {
-            if p.held[i] && idx(i) {
-                s += r[i] * r[i];
-                n += 1;
-            }
-        }
+        let (s, n) = r
+            .iter()
+            .enumerate()
+            .filter(|&(i, _)| p.held[i] && idx(i))
+            .fold((0.0, 0usize), |(s, n), (_, x)| (s + x * x, n + 1));
         if n == 0 {
             f64::NAN
         } else {
@@ -178,7 +179,24 @@ pub fn analyse(
         let sp = spans(&p, &phase, &t.contribution, t.noise_rms, 6);
         let (cand, vals) = t.model.effects.last().expect("an effect was added");
         let peak = t.peak() * LENGTH;
+        // Per phase, over the held-out samples where it acts.
+        let before = stages_d.last().expect("the nominal stage").clone();
+        let acts = |i: usize| t.contribution[i].abs() >= 0.1 * t.peak();
+        let by_phase: Vec<(Phase, f64, f64)> = Phase::ALL
+            .iter()
+            .filter_map(|&ph| {
+                let sel = |i: usize| phase[i] == ph && acts(i);
+                let n = (0..d.len()).filter(|&i| p.held[i] && sel(i)).count();
+                if n < 16 {
+                    return None;
+                }
+                let rb: Vec<f64> = d.iter().zip(&before).map(|(a, b)| a - b / LENGTH).collect();
+                let ra: Vec<f64> = d.iter().zip(&sim_a).map(|(a, b)| a - b).collect();
+                Some((ph, held_rms(&rb, &sel), held_rms(&ra, &sel)))
+            })
+            .collect();
         findings.push(Finding {
+            phases: by_phase,
             kind: t.kind,
             explanation: explain(t.kind, vals, &env, &sp, peak),
             parameters: cand.spec(vals, &env).parameters(),
@@ -231,6 +249,20 @@ impl Diagnosis {
                     .with("parameters", params)
                     .with("rms_before_m", f.rms_before_m)
                     .with("rms_after_m", f.rms_after_m)
+                    .with(
+                        "phases",
+                        Json::Arr(
+                            f.phases
+                                .iter()
+                                .map(|(ph, b, a)| {
+                                    Json::obj()
+                                        .with("phase", ph.as_str())
+                                        .with("rms_before_m", *b)
+                                        .with("rms_after_m", *a)
+                                })
+                                .collect(),
+                        ),
+                    )
                     .with(
                         "evidence",
                         Json::obj()
@@ -285,6 +317,7 @@ impl Diagnosis {
                         .with("noise_rms_m", t.noise_rms * LENGTH)
                         .with("passed_test", t.test.p_value < *level)
                         .with("passed_floor", t.peak() >= DETECTION_FLOOR * t.noise_rms)
+                        .with("amplitude_at_limit", t.at_limit())
                         .with("rms_where_before_m", t.rms_where_before * LENGTH)
                         .with("rms_where_after_m", t.rms_where_after * LENGTH)
                         .with("chosen", *chosen)
@@ -343,7 +376,7 @@ impl Diagnosis {
                         "scheme",
                         "interleaved blocks: every other block fits, the rest is held out",
                     )
-                    .with("blocks", BLOCKS)
+                    .with("samples_per_block", BLOCK)
                     .with("held_out_samples", p.held.iter().filter(|h| **h).count())
                     .with("fit_samples", p.fit.iter().filter(|h| **h).count()),
             )

@@ -94,11 +94,30 @@ impl Tested {
         self.contribution.iter().fold(0.0, |a, b| a.max(b.abs()))
     }
     /// Whether it is reported at per-test level `level`: the held-out test passes, it is
-    /// larger than the detection floor, and the held-out fit improves where it acts.
+    /// larger than the detection floor, the held-out fit improves where it acts, and none
+    /// of its amplitudes sits at a physical limit (a creep fraction at its largest, a mode's
+    /// gain at its bound: an extension that needs that is standing in for other physics).
     pub fn passes(&self, level: f64) -> bool {
         self.test.p_value < level
             && self.peak() >= DETECTION_FLOOR * self.noise_rms
             && self.rms_where_after < self.rms_where_before
+            && !self.at_limit()
+    }
+
+    /// Whether an amplitude of the new effect is at the edge of its range (its null, zero,
+    /// does not count: that is no effect, which the floor judges).
+    pub fn at_limit(&self) -> bool {
+        let Some((cand, vals)) = self.model.effects.last() else {
+            return false;
+        };
+        cand.params.iter().zip(vals).any(|(p, &v)| {
+            if p.shape {
+                return false;
+            }
+            let span = (p.param.hi - p.param.lo).abs();
+            let near = |b: f64| (v - b).abs() <= 1e-3 * span;
+            near(p.param.hi) || (!p.nonneg && near(p.param.lo))
+        })
     }
 }
 
@@ -225,9 +244,9 @@ impl Problem {
     fn fit_residual(&self, m: &Model, env: &Env) -> Option<Vec<f64>> {
         let sim = self.simulate(m, env, None);
         let mut out = Vec::with_capacity(sim.len() / 2 + 1);
-        for i in 0..sim.len() {
-            if self.fit[i] {
-                let r = self.data.d[i] - sim[i];
+        for ((&d, &y), &fit) in self.data.d.iter().zip(&sim).zip(&self.fit) {
+            if fit {
+                let r = d - y;
                 if !r.is_finite() {
                     return None;
                 }
@@ -307,14 +326,14 @@ impl Problem {
         let mut tr = Trace::default();
         let _ = self.simulate(m, env, Some(&mut tr));
         let (mut s, mut n, mut sa, mut na) = (0.0, 0usize, 0.0, 0usize);
-        for i in 0..resid.len() {
-            if !self.fit[i] {
+        for ((&r, &fit), &depth) in resid.iter().zip(&self.fit).zip(&tr.depth) {
+            if !fit {
                 continue;
             }
-            sa += resid[i] * resid[i];
+            sa += r * r;
             na += 1;
-            if tr.depth[i] < 0.0 {
-                s += resid[i] * resid[i];
+            if depth < 0.0 {
+                s += r * r;
                 n += 1;
             }
         }
@@ -425,7 +444,9 @@ impl Problem {
             let nb = jac.len();
             Some((s, beta[nb..].to_vec(), beta[..nb].to_vec()))
         };
-        let mut ranked: Vec<(f64, Vec<f64>, Vec<f64>, Vec<f64>)> = Vec::new();
+        // (SSR, shape point, amplitudes, corrections of the nominal parameters)
+        type Ranked = (f64, Vec<f64>, Vec<f64>, Vec<f64>);
+        let mut ranked: Vec<Ranked> = Vec::new();
         for g in &grid_points {
             if let Some((s, amps, corr)) = lin_fit(g, &mut evals) {
                 ranked.push((s, g.clone(), amps, corr));
@@ -447,39 +468,21 @@ impl Problem {
             if !(hi > lo) {
                 continue;
             }
-            let log = lo > 0.0;
-            let (fwd, back): (fn(f64) -> f64, fn(f64) -> f64) = if log {
-                (f64::ln, f64::exp)
-            } else {
-                (|x| x, |x| x)
-            };
-            let (mut a, mut b) = (fwd(lo), fwd(hi));
-            let gr = (5f64.sqrt() - 1.0) / 2.0;
             let g0 = best_g.clone();
-            let eval_at = |x: f64, evals: &mut usize| {
-                let mut g = g0.clone();
-                g[k] = back(x);
-                lin_fit(&g, evals).map(|r| (r.0, g, r.1, r.2))
-            };
             let iterations = if p.smooth { 8 } else { 12 };
-            for _ in 0..iterations {
-                let x1 = b - gr * (b - a);
-                let x2 = a + gr * (b - a);
-                let f1 = eval_at(x1, &mut evals);
-                let f2 = eval_at(x2, &mut evals);
-                let s1 = f1.as_ref().map_or(f64::INFINITY, |r| r.0);
-                let s2 = f2.as_ref().map_or(f64::INFINITY, |r| r.0);
-                for f in [f1, f2].into_iter().flatten() {
-                    if f.0 < best_s {
-                        (best_s, best_g, best_a, best_c) = f;
+            golden_probe(lo, hi, iterations, |x| {
+                let mut g = g0.clone();
+                g[k] = x;
+                match lin_fit(&g, &mut evals) {
+                    Some(r) => {
+                        if r.0 < best_s {
+                            (best_s, best_g, best_a, best_c) = (r.0, g, r.1, r.2);
+                        }
+                        r.0
                     }
+                    None => f64::INFINITY,
                 }
-                if s1 < s2 {
-                    b = x2;
-                } else {
-                    a = x1;
-                }
-            }
+            });
         }
         // Step 3: everything together, from there: the linearised step scaled back until
         // the full model agrees it helps (far from the nominal model — the large effects of
@@ -567,32 +570,12 @@ impl Problem {
                 self.fit_residual(&mm, env)
                     .map_or(f64::INFINITY, |r| super::fit::ssr(&r))
             };
+            // Every grid point on the full model, then golden section between the best one's
+            // neighbours (in ln where positive).
             let mut best = (ssr, v0);
-            let candidates: Vec<f64> = if p.param.lo >= 0.0 && v0 > 0.0 {
-                let (mut a, mut b) = ((v0 / 3.0).ln(), (v0 * 3.0).ln());
-                let gr = (5f64.sqrt() - 1.0) / 2.0;
-                let mut tried = vec![0.0];
-                for _ in 0..10 {
-                    let x1 = b - gr * (b - a);
-                    let x2 = a + gr * (b - a);
-                    let (s1, s2) = (sim_ssr(x1.exp(), &mut evals), sim_ssr(x2.exp(), &mut evals));
-                    for (s, x) in [(s1, x1), (s2, x2)] {
-                        if s < best.0 {
-                            best = (s, x.exp());
-                        }
-                    }
-                    if s1 < s2 {
-                        b = x2;
-                    } else {
-                        a = x1;
-                    }
-                    tried.clear();
-                }
-                tried
-            } else {
-                p.grid.clone()
-            };
-            for v in candidates {
+            let mut grid = p.grid.clone();
+            grid.sort_by(f64::total_cmp);
+            for &v in &grid {
                 if v != v0 {
                     let s = sim_ssr(v, &mut evals);
                     if s < best.0 {
@@ -600,6 +583,17 @@ impl Problem {
                     }
                 }
             }
+            // The grid points around the best value bracket the golden section.
+            let k = grid.partition_point(|&g| g < best.1).min(grid.len() - 1);
+            let lo = grid[k.saturating_sub(1)];
+            let hi = grid[(k + usize::from(grid[k] == best.1)).min(grid.len() - 1)];
+            golden_probe(lo, hi, 10, |v| {
+                let s = sim_ssr(v, &mut evals);
+                if s < best.0 {
+                    best = (s, v);
+                }
+                s
+            });
             if best.1 != v0 {
                 m.effects[last].1[j] = best.1;
                 ssr = best.0;
@@ -628,6 +622,13 @@ impl Problem {
             .collect()
     }
 
+    /// The noise model of a residual: fitted over every sample, in one run — the fit half's
+    /// short interleaved runs would not hold the memory of a resonant lever's noise, and the
+    /// model is a nuisance an effect barely moves.
+    pub fn noise_model(&self, r: &[f64]) -> NoiseModel {
+        NoiseModel::fit(r, &vec![true; r.len()], MAX_ORDER)
+    }
+
     /// Whether the residual `r` is dominated by misfit: its RMS more than
     /// [`MISFIT_DOMINATED`] times the sample-to-sample scatter (robust σ of the first
     /// difference over √2, which the slow misfit of a model hardly reaches).
@@ -647,7 +648,7 @@ impl Problem {
         r_ext: &[f64],
         contribution: &[f64],
     ) -> (HeldOut, NoiseModel) {
-        let noise = NoiseModel::fit(r_ext, &self.fit, MAX_ORDER);
+        let noise = self.noise_model(r_ext);
         if self.huber_nm.is_some() || self.misfit_dominated(r_base) {
             // On the held-out samples where the extension acts (a tenth of its peak and
             // more): elsewhere both models carry the same misfit, which only adds variance.
@@ -656,7 +657,7 @@ impl Problem {
                 .map(|i| self.held[i] && contribution[i].abs() >= 0.1 * peak)
                 .collect();
             let lags = (4.0 * (self.data.len() as f64 / 100.0).powf(2.0 / 9.0)).ceil() as usize;
-            let block = self.data.len().div_ceil(super::problem::BLOCKS).max(4);
+            let block = super::problem::BLOCK;
             let (r0, r1): (Vec<f64>, Vec<f64>) = match self.huber_nm {
                 Some(c) => (
                     r_base
@@ -680,11 +681,9 @@ impl Problem {
         // σ from the extension's whitened residual on the fit samples.
         let (mut s, mut n) = (0.0, 0usize);
         let p = noise.a.len();
-        for i in p..e1.len() {
-            if self.fit[i] {
-                s += e1[i] * e1[i];
-                n += 1;
-            }
+        for (&e, _) in e1.iter().zip(&self.fit).skip(p).filter(|(_, &fit)| fit) {
+            s += e * e;
+            n += 1;
         }
         let sigma = if n > 0 {
             (s / n as f64).sqrt()
@@ -735,6 +734,7 @@ impl Problem {
         };
         let mut hold = 0.0;
         let mut best_hold = f64::INFINITY;
+        let mut held_fits: Vec<(f64, Model)> = Vec::new();
         for &h in holds {
             let mut m = Model::nominal(inits[0].clone());
             m.nominal.hold = h;
@@ -744,6 +744,7 @@ impl Problem {
                 best_hold = s;
                 hold = h;
             }
+            held_fits.push((s, m));
         }
         let mut starts: Vec<(f64, Model)> = Vec::new();
         for (i, init) in inits.into_iter().enumerate() {
@@ -759,11 +760,22 @@ impl Problem {
             starts.push((r, m));
         }
         let nominal = starts[0].1.clone();
+        // The other input convention stays a start of the first stage too: a drag on the
+        // base's velocity acts through U̇ as the convention does, and the nominal model's
+        // choice can absorb one while the extension needs the other.
+        for (_, m) in held_fits {
+            if m.nominal.hold != hold {
+                let r = self
+                    .fit_residual(&m, &env0)
+                    .map_or(f64::INFINITY, |r| ssr(&r));
+                starts.push((r, m));
+            }
+        }
         // The scales every effect is built with are frozen here, from the fitted nominal
         // model, so that an effect means the same at every stage.
         let env = super::environment(self, &nominal, None);
         let r_nom = self.residual(&nominal, &env);
-        let nominal_noise = NoiseModel::fit(&r_nom, &self.fit, MAX_ORDER);
+        let nominal_noise = self.noise_model(&r_nom);
         let mut model = nominal.clone();
         let mut r_model = r_nom;
         let mut chosen: Vec<Tested> = Vec::new();
@@ -878,7 +890,7 @@ impl Problem {
                 .min_by(|a, b| a.ssr_fit.total_cmp(&b.ssr_fit))
                 .map(|t| {
                     let r = self.residual(&t.model, &env);
-                    NoiseModel::fit(&r, &self.fit, MAX_ORDER)
+                    self.noise_model(&r)
                 });
             let dominated = self.huber_nm.is_some() || self.misfit_dominated(&r_model);
             if let Some(noise) = &common {
@@ -932,6 +944,33 @@ impl Problem {
             model,
             levels,
             evaluations,
+        }
+    }
+}
+
+/// Golden-section search of `f` between `lo` and `hi` (in ln when both are positive) for
+/// `iterations` steps; `f` is told every point it is evaluated at (callers keep the best).
+fn golden_probe(lo: f64, hi: f64, iterations: usize, mut f: impl FnMut(f64) -> f64) {
+    if !(hi > lo) {
+        return;
+    }
+    let log = lo > 0.0;
+    type Map = fn(f64) -> f64;
+    let (fwd, back): (Map, Map) = if log {
+        (f64::ln, f64::exp)
+    } else {
+        (|x| x, |x| x)
+    };
+    let (mut a, mut b) = (fwd(lo), fwd(hi));
+    let gr = (5f64.sqrt() - 1.0) / 2.0;
+    for _ in 0..iterations {
+        let x1 = b - gr * (b - a);
+        let x2 = a + gr * (b - a);
+        let (s1, s2) = (f(back(x1)), f(back(x2)));
+        if s1 < s2 {
+            b = x2;
+        } else {
+            a = x1;
         }
     }
 }

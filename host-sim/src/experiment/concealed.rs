@@ -374,6 +374,7 @@ fn effect_spec(kind: EffectKind, setup: &Setup, shape: &[f64], a: f64) -> Effect
         EffectKind::Adhesion => EffectSpec::Adhesion {
             force_n: a,
             reach_m: shape[0],
+            unloading_only: shape[1] > 0.5,
         },
         EffectKind::SurfaceAttraction => EffectSpec::SurfaceAttraction {
             force_n: a,
@@ -416,7 +417,14 @@ fn draw_shape(kind: EffectKind, setup: &Setup, r: &mut Draw) -> (Vec<f64>, f64) 
     let f0 = setup.cantilever.f0_hz();
     match kind {
         EffectKind::NonlinearStiffness => (vec![r.sign()], 0.2),
-        EffectKind::Adhesion => (vec![r.uniform(0.0, 0.4) * setup.depth_m], 0.02 * f_scale),
+        EffectKind::Adhesion => {
+            // Half from the touch, half only once the contact unloads.
+            let unloading = if r.next() < 0.5 { 0.0 } else { 1.0 };
+            (
+                vec![r.uniform(0.0, 0.4) * setup.depth_m, unloading],
+                0.02 * f_scale,
+            )
+        }
         EffectKind::SurfaceAttraction => {
             let lam = if setup.tap {
                 r.log_uniform(3e-9, 20e-9)

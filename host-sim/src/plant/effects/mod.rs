@@ -6,7 +6,7 @@
 //! | identifier | law (one file each) | parameters |
 //! | --- | --- | --- |
 //! | `nonlinear-stiffness` | [`NonlinearStiffness`]: the bed's elastic force × (δ/δ_ref)^q | q |
-//! | `adhesion` | [`Adhesion`]: −F_a from first touch until the tip is ℓ out of the sample | F_a, ℓ |
+//! | `adhesion` | [`Adhesion`]: −F_a from the first touch (or from when the contact unloads) until the tip is ℓ out of the sample | F_a, ℓ, which |
 //! | `surface-attraction` | [`SurfaceAttraction`]: −F_s·e^{−s/λ} at separation s > 0 (−F_s in contact) | F_s, λ |
 //! | `stress-relaxation` | [`StressRelaxation`]: Maxwell arms on the bed (standard linear solid; two arms approximate power-law rheology) | ρ, τ per arm |
 //! | `hydrodynamic-drag` | [`HydrodynamicDrag`]: −c_h·((1 − w)·Ż + w·U̇), in and out of contact | c_h, w |
@@ -216,8 +216,13 @@ pub enum EffectSpec {
         exponent_change: f64,
         reference_depth_m: f64,
     },
-    /// `force_n` of attraction from first touch until the tip is `reach_m` out.
-    Adhesion { force_n: f64, reach_m: f64 },
+    /// `force_n` of attraction from the first touch (or, `unloading_only`, from when the
+    /// contact unloads) until the tip is `reach_m` out.
+    Adhesion {
+        force_n: f64,
+        reach_m: f64,
+        unloading_only: bool,
+    },
     /// `force_n·e^{−s/decay_length_m}` of attraction at separation s.
     SurfaceAttraction { force_n: f64, decay_length_m: f64 },
     /// Maxwell arms `(stiffness ratio to the bed, relaxation time s)`.
@@ -274,9 +279,15 @@ impl EffectSpec {
                 *exponent_change,
                 reference_depth_m / LENGTH,
             )),
-            EffectSpec::Adhesion { force_n, reach_m } => {
-                Box::new(Adhesion::new(force_n / FORCE, reach_m / LENGTH))
-            }
+            EffectSpec::Adhesion {
+                force_n,
+                reach_m,
+                unloading_only,
+            } => Box::new(Adhesion::new(
+                force_n / FORCE,
+                reach_m / LENGTH,
+                *unloading_only,
+            )),
             EffectSpec::SurfaceAttraction {
                 force_n,
                 decay_length_m,
@@ -338,9 +349,15 @@ impl EffectSpec {
                 p("shallow_force_depth_exponent", 2.0 + exponent_change),
                 p("reference_depth_m", *reference_depth_m),
             ],
-            EffectSpec::Adhesion { force_n, reach_m } => {
-                vec![p("pull_off_force_n", *force_n), p("reach_m", *reach_m)]
-            }
+            EffectSpec::Adhesion {
+                force_n,
+                reach_m,
+                unloading_only,
+            } => vec![
+                p("pull_off_force_n", *force_n),
+                p("reach_m", *reach_m),
+                p("on_unloading_only", f64::from(u8::from(*unloading_only))),
+            ],
             EffectSpec::SurfaceAttraction {
                 force_n,
                 decay_length_m,
