@@ -1,20 +1,35 @@
 //! The boundary between the firmware and the identification core, `visco_core::Controller`.
 //!
 //! The loop needs only [`LoopCore`] (so its host tests can use a mock); [`ActiveCore`] is
-//! the real core, f32 on the Cortex-M7's FPU, and [`build_core`] makes it from the staged
-//! configuration in thread mode, outside the loop (see [`crate::core_config`] for the
-//! parameters). Everything here is `#[inline(always)]` so that the loop interrupt is one
-//! function with the core's per-sample path inside (on the STM32H743: in ITCM).
+//! the real core: `Controller<f32>` on the Cortex-M7's FPU, or `Controller<Q32>` with the
+//! cargo feature `fixed-point` (boards without an FPU) — the same code, one type parameter
+//! ([`Number`]) apart; the conversions at the edge are in [`crate::core_number`].
+//! [`build_core`] makes the core from the staged configuration in thread mode, outside the
+//! loop (see [`crate::core_config`] for the parameters). Everything here is
+//! `#[inline(always)]` so that the loop interrupt is one function with the core's per-sample
+//! path inside (on the STM32H743: in ITCM).
 
 pub use crate::core_config::{StagedConfig, MAX_PARAMS};
+pub use crate::core_number::LoopReal;
 use crate::scale::Scale;
 pub use visco_protocol::Mode;
 
-/// 0 = the stand-in core (gone), 1 = visco-core (announced in the Hello frame).
-pub const CORE_ID: u8 = 1;
+/// The number type the core computes in (f32; `Q32` with the feature `fixed-point`).
+#[cfg(not(feature = "fixed-point"))]
+pub type Number = f32;
+/// The number type the core computes in (f32; `Q32` with the feature `fixed-point`).
+#[cfg(feature = "fixed-point")]
+pub type Number = visco_core::fixed::Q32;
+
+/// Announced in the Hello frame: 1 = visco-core in f32, 2 = visco-core in Q31.32.
+pub const CORE_ID: u8 = <Number as LoopReal>::CORE_ID;
 
 /// The core in use.
-pub type ActiveCore = visco_core::Controller<f32>;
+pub type ActiveCore = visco_core::Controller<Number>;
+
+/// What the ADC code → deflection conversion of [`Number`] needs besides the metres per code
+/// (nothing in f32, nm per code in Q32).
+pub type AdcScale = <Number as LoopReal>::AdcScale;
 
 /// Why a configuration was rejected: the core's own error, naming the field.
 pub type ConfigError = visco_core::ConfigError;
@@ -41,7 +56,7 @@ pub fn build_core(
     let adc = Scale::new_16bit(m as f32).ok_or(ConfigError {
         field: "adc_metres_per_code",
         value: m,
-        reason: "must be finite and non-zero",
+        reason: "must be finite and non-zero (and below 4 µm per code in fixed point)",
     })?;
     Ok(Built { core, adc })
 }
@@ -56,7 +71,7 @@ pub enum CoreCommand {
 }
 
 /// What one `step` produces (the core's `StepOut`).
-pub type StepOut = visco_core::StepOut<f32>;
+pub type StepOut = visco_core::StepOut<Number>;
 
 /// Status bit: a record waits in [`LoopCore::take_record`].
 pub const RECORD_READY: u32 = visco_core::status::RECORD_READY;
@@ -65,8 +80,10 @@ pub const RECORD_READY: u32 = visco_core::status::RECORD_READY;
 pub trait LoopCore {
     /// Applies a command (called in the loop interrupt, before the step).
     fn apply_command(&mut self, cmd: CoreCommand);
-    /// One loop sample: measured deflection in metres.
-    fn step(&mut self, d_m: f32) -> StepOut;
+    /// One loop sample: the measured deflection as [`crate::scale::Scale::to_input`] gives it.
+    fn step(&mut self, d: Number) -> StepOut;
+    /// U, X, Y of the step just taken, in metres (telemetry).
+    fn outputs_m(&self, out: &StepOut) -> [f32; 3];
     /// The finished tap or pixel as a telemetry frame (status bit [`RECORD_READY`]).
     fn take_record(&mut self, index: u32) -> Option<visco_protocol::RecordFrame>;
     /// Current aggregate estimates (c, k, h).
@@ -89,17 +106,19 @@ impl LoopCore for ActiveCore {
         );
     }
     #[inline(always)]
-    fn step(&mut self, d_m: f32) -> StepOut {
-        visco_core::Controller::step(self, d_m)
+    fn step(&mut self, d: Number) -> StepOut {
+        Number::step(self, d)
+    }
+    #[inline(always)]
+    fn outputs_m(&self, out: &StepOut) -> [f32; 3] {
+        Number::outputs_m(self, out)
     }
     #[inline]
     fn take_record(&mut self, index: u32) -> Option<visco_protocol::RecordFrame> {
-        visco_core::Controller::take_record(self)
-            .map(|r| crate::core_config::record_frame(index, &r))
+        Number::take_record(self).map(|r| crate::core_config::record_frame(index, &r))
     }
     fn estimate_array(&self) -> [f32; 3] {
-        let (c, k, h) = visco_core::Controller::estimates(self);
-        [c, k, h]
+        Number::estimates_si(self)
     }
     fn running_mode(&self) -> Option<Mode> {
         visco_core::Controller::mode(self).map(|m| match m {

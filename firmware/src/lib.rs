@@ -10,6 +10,7 @@ extern crate std;
 
 pub mod core_config;
 pub mod core_glue;
+pub mod core_number;
 pub mod drivers;
 pub mod loop_body;
 pub mod scale;

@@ -5,15 +5,16 @@
 //! and the step skipped; a full telemetry queue is counted, and the main loop turns that
 //! count into a gap in the frame sequence numbers, so the host sees the loss too.
 
-use crate::core_glue::{CoreCommand, LoopCore, Mode, RECORD_READY};
+use crate::core_glue::{CoreCommand, LoopCore, LoopReal, Mode, Number, RECORD_READY};
 use crate::spsc::Producer;
 use core::sync::atomic::{AtomicU32, AtomicU8, Ordering};
 use visco_protocol::{RecordFrame, StepFrame};
 
-/// The deflection input (ADC driver and code → metres).
+/// The deflection input (ADC driver and code → the core's input, [`crate::scale::Scale`]).
 pub trait Adc {
-    /// The next sample in metres, or `None` when there is none (counted as starved).
-    fn sample(&mut self) -> Option<f32>;
+    /// The next sample as the core's `step` takes it (metres in f32, nm in fixed point), or
+    /// `None` when there is none (counted as starved).
+    fn sample(&mut self) -> Option<Number>;
 }
 
 /// The actuator output U (DAC driver).
@@ -180,18 +181,19 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
         }
         if self.per_sample {
             let estimates = self.core.estimate_array();
+            let [u_m, x_m, y_m] = self.core.outputs_m(&out);
             let index = self.index();
             emit(
                 &mut self.telemetry,
                 self.counters,
                 Item::Step(StepFrame {
                     index,
-                    d_m: d,
+                    d_m: Number::to_metres(d),
                     u_code: out.u_code,
                     dac_word,
-                    u_m: out.u_m,
-                    x_m: out.x_m,
-                    y_m: out.y_m,
+                    u_m,
+                    x_m,
+                    y_m,
                     status: out.status,
                     estimates,
                 }),
@@ -236,9 +238,9 @@ mod tests {
     use crate::spsc::Spsc;
     use std::vec::Vec;
 
-    struct Fed(Vec<f32>);
+    struct Fed(Vec<Number>);
     impl Adc for Fed {
-        fn sample(&mut self) -> Option<f32> {
+        fn sample(&mut self) -> Option<Number> {
             if self.0.is_empty() {
                 None
             } else {
@@ -273,7 +275,7 @@ mod tests {
         // Free cantilever: D = 0; the core moves to the first tap, then approaches.
         let n = 3000;
         let mut st = LoopState::new(
-            Fed(std::vec![0.0; n]),
+            Fed(std::vec![Number::from_metres(0.0); n]),
             Words::default(),
             Xy::default(),
             built.core,

@@ -1,6 +1,9 @@
-//! Code ↔ metres at the edge of the loop. The core computes in metres; the converters speak
-//! codes. Each conversion is a single correctly rounded f32 operation on an exact integer,
-//! so the host build reproduces it bit for bit (replay feeds codes through the same path).
+//! Code ↔ metres at the edge of the loop. The core computes in metres (f32) or nm (fixed
+//! point, [`crate::core_number`]); the converters speak codes. Each conversion is a single
+//! correctly rounded operation on an exact integer, so the host build reproduces it bit for
+//! bit (replay feeds codes through the same path).
+
+use crate::core_glue::{AdcScale, LoopReal, Number};
 
 /// Metres per code of a converter.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -13,11 +16,13 @@ pub struct Scale {
     pub min_code: i32,
     /// Largest code.
     pub max_code: i32,
+    /// What [`Self::to_input`] needs besides `metres_per_code` (nothing in f32).
+    pub input: AdcScale,
 }
 
 impl Scale {
     /// A 16-bit signed converter with `metres_per_code`; `None` for a zero or non-finite
-    /// factor (validated once, outside the loop).
+    /// factor, or one the core's number type cannot hold (validated once, outside the loop).
     pub fn new_16bit(metres_per_code: f32) -> Option<Self> {
         if !metres_per_code.is_finite() || metres_per_code == 0.0 {
             return None;
@@ -27,7 +32,15 @@ impl Scale {
             codes_per_metre: 1.0 / metres_per_code,
             min_code: -32768,
             max_code: 32767,
+            input: Number::adc_scale(metres_per_code)?,
         })
+    }
+
+    /// The deflection the core's `step` takes for a code: `code as f32 * metres_per_code`
+    /// (f32), or the exact nm of the code in Q31.32 (fixed point).
+    #[inline(always)]
+    pub fn to_input(&self, code: i32) -> Number {
+        Number::from_code(&self.input, self.metres_per_code, code)
     }
 
     /// Metres for a code: `code as f32 * metres_per_code` (exact for |code| < 2²⁴).

@@ -16,10 +16,21 @@
 //! Both ends build their `visco_core::Config` with [`core_config`], which is the firmware's
 //! own source file (`firmware/src/core_config.rs`) included here: `Config::paper` at the
 //! staged sample rate with the staged fields replaced ([`FirmwareConfig`]).
+//!
+//! The firmware's core runs in f32 or, built with the feature `fixed-point`, in Q31.32
+//! (issue 8). The functions ending in `_in` take the number type ([`LoopReal`]: `f32` or
+//! `visco_core::fixed::Q32`); the conversions at the loop's edge are the firmware's own
+//! source file too ([`core_number`]), so the host reference of either build is bit-identical
+//! by construction. The functions without `_in` are the f32 build.
 
 #[path = "../../firmware/src/core_config.rs"]
 #[allow(missing_docs)]
 pub mod core_config;
+
+#[path = "../../firmware/src/core_number.rs"]
+pub mod core_number;
+
+pub use core_number::LoopReal;
 
 use crate::plant::{Plant, PlantConfig};
 use crate::recording::{self, Column, Metadata, Recording};
@@ -177,6 +188,17 @@ impl Adc {
         let c = self.code(d_m);
         (self.metres(c) as f64 == d_m).then_some(c)
     }
+    /// The code → `R` factor, as the firmware built for `R` computes it.
+    pub fn scale<R: LoopReal>(&self) -> Result<R::AdcScale> {
+        R::adc_scale(self.metres_per_code).ok_or_else(|| {
+            format!(
+                "{ADC_KEY} = {:e}: not representable in the {} core",
+                self.metres_per_code,
+                R::NAME
+            )
+            .into()
+        })
+    }
 }
 
 /// The AD5541 word for a signed code (as `firmware/src/drivers/ad5541.rs`).
@@ -191,19 +213,24 @@ fn core_mode(m: Mode) -> visco_core::Mode {
     }
 }
 
-/// One step of the host build, reported as the firmware reports it.
-fn frame(index: u32, d: f32, ctrl: &Controller<f32>, o: &visco_core::StepOut<f32>) -> StepFrame {
-    let (c, k, h) = ctrl.estimates();
+/// One step of the host build, reported as the firmware reports it (`loop_body.rs`).
+fn frame<R: LoopReal>(
+    index: u32,
+    d: R,
+    ctrl: &Controller<R>,
+    o: &visco_core::StepOut<R>,
+) -> StepFrame {
+    let [u_m, x_m, y_m] = R::outputs_m(ctrl, o);
     StepFrame {
         index,
-        d_m: d,
+        d_m: R::to_metres(d),
         u_code: o.u_code,
         dac_word: dac_word(o.u_code),
-        u_m: o.u_m,
-        x_m: o.x_m,
-        y_m: o.y_m,
+        u_m,
+        x_m,
+        y_m,
         status: o.status,
-        estimates: [c, k, h],
+        estimates: R::estimates_si(ctrl),
     }
 }
 
@@ -214,15 +241,25 @@ pub fn reference(
     mode: Mode,
     inputs: &[f32],
 ) -> Result<(Vec<StepFrame>, Vec<RecordFrame>)> {
-    let mut ctrl = Controller::<f32>::new(cfg).map_err(config_error)?;
+    reference_in::<f32>(cfg, mode, inputs)
+}
+
+/// [`reference`] in the number type `R`; `inputs` as `R::step` takes them
+/// ([`Inputs::core_inputs`]).
+pub fn reference_in<R: LoopReal>(
+    cfg: &Config,
+    mode: Mode,
+    inputs: &[R],
+) -> Result<(Vec<StepFrame>, Vec<RecordFrame>)> {
+    let mut ctrl = Controller::<R>::new(cfg).map_err(config_error)?;
     ctrl.command(Command::Start(core_mode(mode)));
     let mut steps = Vec::with_capacity(inputs.len());
     let mut records = Vec::new();
     for (i, &d) in inputs.iter().enumerate() {
-        let o = ctrl.step(d);
+        let o = R::step(&mut ctrl, d);
         steps.push(frame(i as u32, d, &ctrl, &o));
         if o.status & status::RECORD_READY != 0 {
-            if let Some(r) = ctrl.take_record() {
+            if let Some(r) = R::take_record(&mut ctrl) {
                 records.push(record_frame(i as u32, &r));
             }
         }
@@ -290,10 +327,23 @@ pub fn simulate(
     seed: u64,
     max_samples: usize,
 ) -> Result<Simulation> {
+    simulate_in::<f32>(fw, mode, sample, seed, max_samples)
+}
+
+/// [`simulate`] with the core in the number type `R` (the firmware built for it replays the
+/// recording bit for bit). The recording's D is the ADC's value in metres either way.
+pub fn simulate_in<R: LoopReal>(
+    fw: &FirmwareConfig,
+    mode: Mode,
+    sample: &Sample,
+    seed: u64,
+    max_samples: usize,
+) -> Result<Simulation> {
     let cfg = fw.core_config().map_err(config_error)?;
     let adc = fw.adc(&cfg)?;
+    let scale = adc.scale::<R>()?;
     let mut plant = build_plant(&cfg, sample, seed)?;
-    let mut ctrl = Controller::<f32>::new(&cfg).map_err(config_error)?;
+    let mut ctrl = Controller::<R>::new(&cfg).map_err(config_error)?;
     ctrl.command(Command::Start(core_mode(mode)));
     let fs = cfg.sample_rate_hz;
     let mut meta = Metadata::new(
@@ -311,7 +361,8 @@ pub fn simulate(
         "source",
         format!(
             "visco::replay::simulate: host plant (cell phantom, seed {seed}) in closed loop \
-             with the host core, D through the firmware's ADC path"
+             with the host core ({}), D through the firmware's ADC path",
+            R::NAME
         ),
     );
     meta.set(CONFIG_KEY, fw.to_metadata());
@@ -325,33 +376,35 @@ pub fn simulate(
     let mut steps = Vec::new();
     let mut records = Vec::new();
     // What the DACs held over the period that ends at the sample: the previous step's output.
-    let mut held = (ctrl.u_m(), cfg.dive.x0_m, cfg.dive.y0_m);
+    let mut held = (R::u_m(&ctrl), cfg.dive.x0_m, cfg.dive.y0_m);
     let mut d_nm = plant.measured_deflection_m() * 1e9;
     for i in 0..max_samples {
         let code = adc.code(d_nm * 1e-9);
-        let d = adc.metres(code);
-        let o = ctrl.step(d);
+        let d = R::from_code(&scale, adc.metres_per_code, code as i32);
+        let o = R::step(&mut ctrl, d);
         codes.push(code);
         rec.t_s.push(i as f64 / fs);
         rec.u_m.push(held.0 as f64);
-        rec.d_m.push(d as f64);
+        rec.d_m.push(adc.metres(code) as f64);
         if let (Some(x), Some(y)) = (rec.x_m.as_mut(), rec.y_m.as_mut()) {
             x.push(held.1);
             y.push(held.2);
         }
         u_code_col.push(o.u_code as f64);
         status_col.push(o.status as f64);
-        steps.push(frame(i as u32, d, &ctrl, &o));
+        let f = frame(i as u32, d, &ctrl, &o);
+        steps.push(f);
         if o.status & status::RECORD_READY != 0 {
-            if let Some(r) = ctrl.take_record() {
+            if let Some(r) = R::take_record(&mut ctrl) {
                 records.push(record_frame(i as u32, &r));
             }
         }
         if ctrl.phase() == Phase::Done {
             break;
         }
-        held = (o.u_m, o.x_m as f64, o.y_m as f64);
-        d_nm = plant.step_nm(o.u_m as f64 * 1e9, o.x_m as f64 * 1e9, o.y_m as f64 * 1e9);
+        // The plant moves as the firmware's telemetry says (as in lockstep).
+        held = (f.u_m, f.x_m as f64, f.y_m as f64);
+        d_nm = plant.step_nm(f.u_m as f64 * 1e9, f.x_m as f64 * 1e9, f.y_m as f64 * 1e9);
     }
     rec.extra = vec![
         Column {
@@ -395,6 +448,23 @@ pub struct Inputs {
     pub d: Vec<f32>,
     /// Samples whose D was not on the ADC grid and was rounded (codes only).
     pub rounded: usize,
+}
+
+impl Inputs {
+    /// The deflections as the core in `R` receives them: `R::from_code` of the codes, or
+    /// `R::from_metres` (for f32 both equal [`Self::d`]).
+    pub fn core_inputs<R: LoopReal>(&self, adc: &Adc) -> Result<Vec<R>> {
+        Ok(match self.kind {
+            InputKind::Codes => {
+                let s = adc.scale::<R>()?;
+                self.codes
+                    .iter()
+                    .map(|&c| R::from_code(&s, adc.metres_per_code, c as i32))
+                    .collect()
+            }
+            _ => self.d.iter().map(|&d| R::from_metres(d)).collect(),
+        })
+    }
 }
 
 /// Resolves `kind` for the deflections `d_m` and converts them.
@@ -441,15 +511,25 @@ pub struct Target {
     pub elf: std::path::PathBuf,
     /// Time allowed for QEMU to start and for any answer.
     pub timeout: Duration,
+    /// QEMU machine and CPU: `mps2-an500`/`cortex-m7` (default), or `mps2-an385`/`cortex-m3`
+    /// for the `thumbv7m-none-eabi` build.
+    pub machine: (String, String),
 }
 
 impl Target {
-    /// The image at `elf`, 120 s time-out.
+    /// The image at `elf`, 120 s time-out, on the Cortex-M7 machine.
     pub fn new(elf: impl Into<std::path::PathBuf>) -> Self {
         Self {
             elf: elf.into(),
             timeout: Duration::from_secs(120),
+            machine: ("mps2-an500".into(), "cortex-m7".into()),
         }
+    }
+
+    /// The same on another QEMU machine and CPU.
+    pub fn on(mut self, machine: &str, cpu: &str) -> Self {
+        self.machine = (machine.into(), cpu.into());
+        self
     }
 
     /// Starts QEMU with the image; the defmt log goes next to the image (`<elf>.<tag>.defmt`).
@@ -465,7 +545,28 @@ impl Target {
         let mut opts = QemuOptions::new(&self.elf);
         opts.defmt_out = self.elf.with_extension(format!("{tag}.defmt"));
         opts.timeout = self.timeout;
+        opts.machine = self.machine.0.clone();
+        opts.cpu = self.machine.1.clone();
         Ok(QemuLink::spawn(&opts).map_err(|e| format!("QEMU: {e}"))?)
+    }
+
+    /// [`Self::spawn`], checking that the firmware's core computes in `R` (its Hello): a
+    /// host reference in another number type could never match.
+    pub fn spawn_for<R: LoopReal>(&self, tag: &str) -> Result<QemuLink> {
+        let link = self.spawn(tag)?;
+        if link.core != R::CORE_ID {
+            return Err(format!(
+                "{} runs core {} but the host reference is {} (core {}): build the firmware \
+                 {} the feature `fixed-point`",
+                self.elf.display(),
+                link.core,
+                R::NAME,
+                R::CORE_ID,
+                if R::CORE_ID == 2 { "with" } else { "without" }
+            )
+            .into());
+        }
+        Ok(link)
     }
 }
 
@@ -512,11 +613,23 @@ pub fn replay_qemu(
     kind: InputKind,
     per_sample: PerSample,
 ) -> Result<ReplayRun> {
+    replay_qemu_in::<f32>(target, fw, mode, d_m, kind, per_sample)
+}
+
+/// [`replay_qemu`] for the firmware whose core computes in `R`.
+pub fn replay_qemu_in<R: LoopReal>(
+    target: &Target,
+    fw: &FirmwareConfig,
+    mode: Mode,
+    d_m: &[f64],
+    kind: InputKind,
+    per_sample: PerSample,
+) -> Result<ReplayRun> {
     let cfg = fw.core_config().map_err(config_error)?;
     let adc = fw.adc(&cfg)?;
     let inp = inputs(d_m, &adc, kind);
-    let (host, host_records) = reference(&cfg, mode, &inp.d)?;
-    let mut link = target.spawn(&format!("replay-{mode:?}"))?;
+    let (host, host_records) = reference_in::<R>(&cfg, mode, &inp.core_inputs::<R>(&adc)?)?;
+    let mut link = target.spawn_for::<R>(&format!("replay-{mode:?}"))?;
     fw.send(&mut link)?;
     let input = match inp.kind {
         InputKind::Codes => ReplayInput::Codes(&inp.codes),
@@ -594,12 +707,24 @@ pub fn lockstep_qemu(
     seed: u64,
     max_samples: usize,
 ) -> Result<LockstepRun> {
-    let host = simulate(fw, mode, sample, seed, max_samples)?;
+    lockstep_qemu_in::<f32>(target, fw, mode, sample, seed, max_samples)
+}
+
+/// [`lockstep_qemu`] for the firmware whose core computes in `R`.
+pub fn lockstep_qemu_in<R: LoopReal>(
+    target: &Target,
+    fw: &FirmwareConfig,
+    mode: Mode,
+    sample: &Sample,
+    seed: u64,
+    max_samples: usize,
+) -> Result<LockstepRun> {
+    let host = simulate_in::<R>(fw, mode, sample, seed, max_samples)?;
     let n = host.steps.len();
     let cfg = &host.config;
     let adc = host.adc;
     let mut plant = build_plant(cfg, sample, seed)?;
-    let mut link = target.spawn(&format!("lockstep-{mode:?}"))?;
+    let mut link = target.spawn_for::<R>(&format!("lockstep-{mode:?}"))?;
     fw.send(&mut link)?;
     link.start_lockstep(mode)?;
     let started = Instant::now();

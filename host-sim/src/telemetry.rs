@@ -555,6 +555,8 @@ pub mod qemu {
         pub writer: CommandWriter<UnixStream>,
         /// Frames that arrived while waiting for something else (in order).
         pub backlog: Vec<Telemetry>,
+        /// The core the firmware announced in its Hello (1: f32, 2: Q31.32).
+        pub core: u8,
         timeout: Duration,
         lockstep_index: u32,
     }
@@ -617,12 +619,16 @@ pub mod qemu {
                 reader: TelemetryReader::new(stream),
                 writer: CommandWriter::new(w),
                 backlog: Vec::new(),
+                core: 0,
                 timeout: opts.timeout,
                 lockstep_index: 0,
             };
             match link.next_message()? {
-                Telemetry::Hello { protocol, .. }
-                    if protocol == visco_protocol::PROTOCOL_VERSION => {}
+                Telemetry::Hello { protocol, core, .. }
+                    if protocol == visco_protocol::PROTOCOL_VERSION =>
+                {
+                    link.core = core
+                }
                 other => {
                     return Err(err(format!(
                         "expected Hello from the firmware, got {other:?}"

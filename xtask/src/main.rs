@@ -11,13 +11,18 @@ fn usage() -> &'static str {
   panic-check                   prove no panic path is linked (panic-never handler + canary)
   calibrate [--shifts 0,3,6] [--m3]
                                 SysTick ticks vs counted instructions under -icount
-  bench [--steps N] [--shift S] [--m3] [--window idle|dive-dwell|dive-readout|sve-scan]
+  bench [--steps N] [--shift S] [--m3] [--fixed] [--gradient]
+        [--window idle|dive-dwell|dive-readout|sve-scan]
                                 instructions per loop interrupt: core stopped, DIVE dwell, DIVE
                                 read-out, SVE scan, over closed-loop recordings (--m3: the
-                                thumbv7m-none-eabi build on mps2-an385, Cortex-M3, soft float)
-  replay [--full]               replay a closed-loop DIVE tap and SVE line through QEMU, compare
+                                thumbv7m-none-eabi build on mps2-an385, Cortex-M3, soft float;
+                                --fixed: the core in Q31.32, feature fixed-point; --gradient:
+                                the gradient estimator in both modes)
+  replay [--full] [--m3] [--fixed]
+                                replay a closed-loop DIVE tap and SVE line through QEMU, compare
                                 with the host bit for bit (digests per block, or --full: every
-                                field of every sample)
+                                field of every sample; --m3 --fixed: the Q31.32 build on the
+                                Cortex-M3 against the host's Q31.32 core)
   firmware-report [--json FILE] [--no-replay]
                                 all measurements; JSON as documented in firmware/README.md
   test                          everything: install tools, fmt, no_std build, host tests,
@@ -27,7 +32,7 @@ fn usage() -> &'static str {
   link-throughput               diagnostic: each direction of the QEMU UART link alone
   lockstep                      closed loop: host plant ↔ firmware under QEMU, one round trip
                                 per sample, an SVE line segment, compared with the host-only run
-  profile [--window W] [--steps N]
+  profile [--window W] [--steps N] [--m3] [--fixed] [--gradient]
                                 executed instructions of the loop interrupt per function and
                                 per instruction (QEMU exec log) in a bench window: dive-dwell,
                                 dive-readout, sve-scan
@@ -51,6 +56,33 @@ fn num<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> Result<
         Some(v) => v
             .parse()
             .map_err(|_| format!("{name} needs a number, got {v:?}")),
+    }
+}
+
+/// `--m3`: the Cortex-M3 build on mps2-an385; else the Cortex-M7 on mps2-an500.
+fn machine(args: &[String]) -> firmware::Machine {
+    if args.iter().any(|a| a == "--m3") {
+        firmware::M3
+    } else {
+        firmware::M7
+    }
+}
+
+/// `--fixed`: the core in Q31.32 (feature `fixed-point`); else f32.
+fn number(args: &[String]) -> firmware::Number {
+    if args.iter().any(|a| a == "--fixed") {
+        firmware::Number::Q32
+    } else {
+        firmware::Number::F32
+    }
+}
+
+/// `--gradient`: the gradient estimator in both modes; else least squares.
+fn estimator(args: &[String]) -> firmware::Estimator {
+    if args.iter().any(|a| a == "--gradient") {
+        firmware::Estimator::Gradient
+    } else {
+        firmware::Estimator::LeastSquares
     }
 }
 
@@ -100,29 +132,26 @@ fn main() -> ExitCode {
                 firmware::ensure_tools()?;
                 let steps = num(rest, "--steps", firmware::BENCH_STEPS)?;
                 let shift = num(rest, "--shift", 0u32)?;
-                let m = if rest.iter().any(|a| a == "--m3") {
-                    firmware::M3
-                } else {
-                    firmware::M7
-                };
-                let elf = firmware::build_for(m.target, firmware::Board::Qemu, &[])?;
-                println!("{} ({}), {}", m.machine, m.cpu, m.target);
+                let e = estimator(rest);
+                let img = firmware::build_image(machine(rest), number(rest))?;
+                println!("{}, estimator: {}", img.describe(), e.name());
                 let b = firmware::bench_all(
-                    m,
-                    &elf,
+                    &img,
                     steps,
                     shift,
                     arg_value(rest, "--window").as_deref(),
+                    e,
                 )?;
                 firmware::print_bench(&b);
                 Ok(())
             }
             "replay" => {
                 firmware::ensure_tools()?;
-                let elf = firmware::build(firmware::Board::Qemu, &[])?;
+                let img = firmware::build_image(machine(rest), number(rest))?;
+                println!("{}", img.describe());
                 let mut ok = true;
                 for s in [firmware::dive_tap(), firmware::sve_line()] {
-                    let r = firmware::replay(&elf, &s, rest.iter().any(|a| a == "--full"))?;
+                    let r = firmware::replay_image(&img, &s, rest.iter().any(|a| a == "--full"))?;
                     println!(
                         "replay {}: {} samples, {:.0} samples/s, bit-identical {}, {} records \
                          identical {}, reproduces the closed-loop recording {}, link: {}",
@@ -159,10 +188,17 @@ fn main() -> ExitCode {
             "link-throughput" => firmware::link_throughput(),
             "lockstep" => firmware::lockstep().map(|_| ()),
             "core-digest" => firmware::core_digest(),
-            "profile" => firmware::profile(
-                &arg_value(rest, "--window").unwrap_or_else(|| "sve-scan".into()),
-                num(rest, "--steps", 200u32)?,
-            ),
+            "profile" => {
+                firmware::ensure_tools()?;
+                let img = firmware::build_image(machine(rest), number(rest))?;
+                println!("{}, estimator: {}", img.describe(), estimator(rest).name());
+                firmware::profile_image(
+                    &img,
+                    &arg_value(rest, "--window").unwrap_or_else(|| "sve-scan".into()),
+                    num(rest, "--steps", 200u32)?,
+                    estimator(rest),
+                )
+            }
             "flash-stm32h743" => firmware::flash_stm32h743(
                 &arg_value(rest, "--chip").unwrap_or_else(|| "STM32H743ZITx".into()),
             ),

@@ -241,6 +241,35 @@ pub enum Record<T> {
     Pixel(PixelRecord<T>),
 }
 
+impl<T: crate::Real> Record<T> {
+    /// Internal units → SI: lengths and forces × `length` (1e-9), damping × `damping`
+    /// (1e-6). The same products, in the same order, that the sequencers computed before
+    /// records were kept in internal units, so f32 records are unchanged bit for bit.
+    #[inline]
+    fn scaled(self, length: T, damping: T) -> Self {
+        match self {
+            Record::Tap(t) => Record::Tap(TapRecord {
+                x_m: t.x_m * length,
+                y_m: t.y_m * length,
+                contact_height_m: t.contact_height_m * length,
+                c_ns_per_m: t.c_ns_per_m * damping,
+                offset_n: t.offset_n * length,
+                centre_m: t.centre_m * length,
+                depth_m: t.depth_m * length,
+                ..t
+            }),
+            Record::Pixel(p) => Record::Pixel(PixelRecord {
+                x_m: p.x_m * length,
+                y_m: p.y_m * length,
+                c_ns_per_m: p.c_ns_per_m * damping,
+                bed_height_m: p.bed_height_m * length,
+                depth_m: p.depth_m * length,
+                ..p
+            }),
+        }
+    }
+}
+
 /// A DAC's grid: codes relative to mid-scale.
 #[derive(Clone, Copy, Debug)]
 struct Dac<T> {
@@ -783,8 +812,17 @@ impl<T: SineTable> Controller<T> {
         (self.x, self.y)
     }
 
-    /// The finished tap or pixel, if one is waiting (status bit RECORD_READY).
+    /// The finished tap or pixel, if one is waiting (status bit RECORD_READY), in SI.
+    #[inline]
     pub fn take_record(&mut self) -> Option<Record<T>> {
+        let (to_m, to_si) = (self.p.to_m, self.p.damping_to_si);
+        self.record.take().map(|r| r.scaled(to_m, to_si))
+    }
+
+    /// [`Self::take_record`] in the core's internal units (nm, nN, nN·µs/nm, N/m: the fields
+    /// named `_m` hold nm, `offset_n` nN, `c_ns_per_m` nN·µs/nm): what a fixed-point caller
+    /// reads, as no Q format holds the SI factors (see [`crate::fixed`]).
+    pub fn take_record_internal(&mut self) -> Option<Record<T>> {
         self.record.take()
     }
 
@@ -1132,21 +1170,21 @@ impl<T: SineTable> Controller<T> {
         let p = self.p.dive;
         let s = &mut self.dive;
         let m = s.acc.mean();
-        let to_m = self.p.to_m;
         let tap = s.tap;
+        // In internal units: `take_record` converts to SI.
         let rec = TapRecord {
             index: tap,
             ix: (tap % p.nx) as u16,
             iy: (tap / p.nx) as u16,
-            x_m: self.x * to_m,
-            y_m: self.y * to_m,
-            contact_height_m: if contact { s.h * to_m } else { T::ZERO },
-            c_ns_per_m: m[0] * self.p.damping_to_si,
+            x_m: self.x,
+            y_m: self.y,
+            contact_height_m: if contact { s.h } else { T::ZERO },
+            c_ns_per_m: m[0],
             k_n_per_m: m[1],
-            offset_n: m[2] * to_m,
+            offset_n: m[2],
             // The mean of the constant z₀ over the read-out (0 without samples).
-            centre_m: if s.acc.n > 0 { s.z0 } else { T::ZERO } * to_m,
-            depth_m: m[3] * to_m,
+            centre_m: if s.acc.n > 0 { s.z0 } else { T::ZERO },
+            depth_m: m[3],
             regressor: p.regressor,
             flags: s.flags | s.acc.flags,
             samples: s.acc.n,
@@ -1481,22 +1519,22 @@ impl<T: SineTable> Controller<T> {
         let s = &mut self.sve;
         let m = s.acc.mean();
         let n = s.acc.n.max(1);
-        let to_m = self.p.to_m;
         let pixel = if forward {
             s.pixel
         } else {
             p.pixels.get() - 1 - s.pixel
         };
+        // In internal units: `take_record` converts to SI.
         let rec = PixelRecord {
             line: s.line as u16,
             pixel: pixel as u16,
             forward,
-            x_m: (p.x0 + s.x_acc / T::from_i32(n as i32)) * to_m,
-            y_m: self.y * to_m,
-            c_ns_per_m: m[0] * self.p.damping_to_si,
+            x_m: p.x0 + s.x_acc / T::from_i32(n as i32),
+            y_m: self.y,
+            c_ns_per_m: m[0],
             k_n_per_m: m[1],
-            bed_height_m: m[2] * to_m,
-            depth_m: m[3] * to_m,
+            bed_height_m: m[2],
+            depth_m: m[3],
             flags: s.acc.flags,
             samples: s.acc.n,
         };

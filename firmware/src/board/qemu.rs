@@ -21,7 +21,7 @@ use cortex_m::peripheral::{syst::SystClkSource, NVIC};
 use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::{ErrorType as PinErrorType, OutputPin};
 use embedded_hal::spi::{ErrorType as SpiErrorType, SpiBus};
-use visco_firmware::core_glue::{ActiveCore, CoreCommand, LoopCore, Mode};
+use visco_firmware::core_glue::{ActiveCore, CoreCommand, LoopCore, LoopReal, Mode, Number};
 use visco_firmware::drivers::ad4000::{self, part, Ad4000, CFG_TURBO};
 use visco_firmware::drivers::ad5541::Ad5541;
 use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, TELEMETRY_DEPTH};
@@ -261,7 +261,7 @@ pub struct QemuAdc {
 
 impl loop_body::Adc for QemuAdc {
     #[inline(always)]
-    fn sample(&mut self) -> Option<f32> {
+    fn sample(&mut self) -> Option<Number> {
         let code = match self.source {
             AdcSource::Synthetic => {
                 // A triangle-ish wave of ±8192 codes: deterministic and cheap.
@@ -270,7 +270,7 @@ impl loop_body::Adc for QemuAdc {
             }
             AdcSource::Feed => match self.feed.pop()? {
                 FeedSample::Code(c) => c as i32,
-                FeedSample::Metres(m) => return Some(m),
+                FeedSample::Metres(m) => return Some(Number::from_metres(m)),
             },
             AdcSource::Table => {
                 let i = self.table_pos;
@@ -287,7 +287,7 @@ impl loop_body::Adc for QemuAdc {
         let raw = ad4000::encode(code, 16, ad4000::Coding::StraightBinary);
         self.dev.device_mut().bus_mut().conversion = raw << 16;
         match self.dev.read_code() {
-            Ok(c) => Some(self.scale.to_metres(c)),
+            Ok(c) => Some(self.scale.to_input(c)),
             Err(e) => match e {},
         }
     }
@@ -767,15 +767,20 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32)
     cortex_m::interrupt::free(|_| {
         let t0 = systick_now();
         for &c in table {
-            let d = scale.to_metres(c as i32);
+            let d = scale.to_input(c as i32);
             // Through an opaque reference, as the interrupt sees its core: no state or
-            // parameter is kept in registers from one call to the next.
+            // parameter is kept in registers from one call to the next. `LoopCore::step`,
+            // the interrupt's entry (for Q32 the inherent `step` is the SI one). Only what
+            // the interrupt uses of the output is kept: the DAC codes and the status word
+            // (its SI values are telemetry, computed only in replay; for Q31.32 they are
+            // three 128-bit products the interrupt never pays).
             let core = core::hint::black_box(&mut copy);
-            core::hint::black_box(core.step(core::hint::black_box(d)));
+            let o = LoopCore::step(core, core::hint::black_box(d));
+            core::hint::black_box((o.u_code, o.x_code, o.y_code, o.status));
         }
         let t1 = systick_now();
         for &c in table {
-            let d = scale.to_metres(c as i32);
+            let d = scale.to_input(c as i32);
             core::hint::black_box(core::hint::black_box(d));
         }
         let t2 = systick_now();

@@ -21,7 +21,7 @@ use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::{ErrorType as PinErrorType, OutputPin};
 use embedded_hal::spi::{ErrorType as SpiErrorType, SpiBus};
 use stm32h7::stm32h743 as pac;
-use visco_firmware::core_glue::ActiveCore;
+use visco_firmware::core_glue::{ActiveCore, Number};
 use visco_firmware::drivers::ad4000::{part, Ad4000, CFG_TURBO};
 use visco_firmware::drivers::ad5541::Ad5541;
 use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, TELEMETRY_DEPTH};
@@ -296,9 +296,9 @@ pub struct H7Adc {
 }
 impl loop_body::Adc for H7Adc {
     #[inline(always)]
-    fn sample(&mut self) -> Option<f32> {
+    fn sample(&mut self) -> Option<Number> {
         match self.dev.read_code() {
-            Ok(c) => Some(self.scale.to_metres(c)),
+            Ok(c) => Some(self.scale.to_input(c)),
             Err(e) => match e {},
         }
     }

@@ -34,6 +34,7 @@ pub mod concealed;
 pub mod demo;
 pub mod excitation_study;
 pub mod faults;
+pub mod fixed_point;
 pub mod metrics;
 pub mod scaling;
 pub mod sweep;
