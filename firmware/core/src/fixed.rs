@@ -22,14 +22,214 @@
 //!   word length.
 //!
 //! Arithmetic: + and − saturate (never wrap); × rounds to nearest (ties away from zero) and
-//! saturates, computed in 128 bits; ÷ rounds to nearest and saturates, and a division by zero
-//! gives the saturated value of the dividend's sign (0/0 gives 0) — never a panic. There is no
-//! NaN or ∞: [`Real::is_finite`] is always true, and a saturated value is the fixed-point
-//! image of an overflow.
+//! saturates, exactly as a 128-bit product would, computed with 32×32→64-bit partial products;
+//! ÷ rounds to nearest and saturates, exactly as a 128-bit division would, computed as a long
+//! division in 32-bit digits (the 128-bit forms are the reference of `tests/fixed_arith.rs`);
+//! a division by zero gives the saturated value of the dividend's sign (0/0 gives 0) — never a
+//! panic. There is no NaN or ∞: [`Real::is_finite`] is always true, and a saturated value is
+//! the fixed-point image of an overflow.
 
 use crate::excitation::{SineTable, SIN_TABLE_F64, TABLE_SIZE};
 use crate::real::Real;
+use core::num::NonZeroU32;
 use core::ops::{Add, AddAssign, Div, Mul, MulAssign, Neg, Sub, SubAssign};
+
+/// The full 128-bit product of two `u64`, as (high, low) words, from four 32×32→64-bit
+/// partial products: one `UMULL` each on a 32-bit Arm core, where a `u128` product would
+/// call compiler-builtins' `__multi3`.
+#[inline(always)]
+fn mul_u64_wide(a: u64, b: u64) -> (u64, u64) {
+    const LO: u64 = 0xffff_ffff;
+    let (a0, a1) = (a & LO, a >> 32);
+    let (b0, b1) = (b & LO, b >> 32);
+    // Each partial product is at most (2³² − 1)², below 2⁶⁴.
+    let p00 = a0 * b0;
+    let p01 = a0 * b1;
+    let p10 = a1 * b0;
+    let p11 = a1 * b1;
+    // Bits 32..: at most 3·(2³² − 1), no overflow.
+    let mid = (p00 >> 32) + (p01 & LO) + (p10 & LO);
+    let lo = (mid << 32) | (p00 & LO);
+    // Every partial sum is at most the final high word, which is below 2⁶⁴ because the
+    // product is below 2¹²⁸: no overflow.
+    let hi = p11 + (p01 >> 32) + (p10 >> 32) + (mid >> 32);
+    (hi, lo)
+}
+
+/// `a·b / 2^frac` rounded to nearest, ties away from zero, saturated to `i64`: bit for bit
+/// the `i128` computation
+/// `sat(if p >= 0 { (p + h) >> frac } else { -((-p + h) >> frac) })` with `p = a·b` and
+/// `h = 2^(frac−1)` (the reference in `tests/fixed_arith.rs`), in 64- and 32-bit words.
+///
+/// The signed product is the unsigned product of the two's-complement words minus
+/// `2⁶⁴·(b·[a < 0] + a·[b < 0])` (mod 2¹²⁸). Rounding: for p < 0, `−⌊(−p + h)/2^f⌋ =
+/// ⌈(p − h)/2^f⌉ = ⌊(p + h − 1)/2^f⌋`, so both signs are one arithmetic shift of
+/// `p + h − [p < 0]` (|p| ≤ 2¹²⁶: no overflow). `frac` must be in 1..=63.
+#[inline(always)]
+fn mul_round_sat(a: i64, b: i64, frac: u32) -> i64 {
+    let (hi, lo) = mul_u64_wide(a as u64, b as u64);
+    // All ones when negative.
+    let a_neg = (a >> 63) as u64;
+    let b_neg = (b >> 63) as u64;
+    let hi = hi
+        .wrapping_sub(a_neg & b as u64)
+        .wrapping_sub(b_neg & a as u64);
+    // p + h − [p < 0]: h − [p < 0] ≥ 0 since frac ≥ 1.
+    let add = (1u64 << (frac - 1)) - (hi >> 63);
+    let (lo, carry) = lo.overflowing_add(add);
+    let hi = hi.wrapping_add(carry as u64) as i64;
+    // r = p' >> frac fits in i64 iff p' >> (63 + frac), i.e. hi >> (frac − 1), is 0 or −1.
+    let top = hi >> (frac - 1);
+    if top == 0 || top == -1 {
+        ((lo >> frac) | ((hi as u64) << (64 - frac))) as i64
+    } else if hi < 0 {
+        i64::MIN
+    } else {
+        i64::MAX
+    }
+}
+
+/// `(u1·2³² + u0) / v` for a normalised `v` (≥ 2³¹) and `u1 < v`, so the quotient fits in a
+/// `u32`: `divlu` of Hacker's Delight in 16-bit digits, each digit one 32-bit division (one
+/// `UDIV` on a Cortex-M3, which has no 64-bit divide) and at most two corrections.
+#[inline(always)]
+fn div_u64_by_u32_norm(u1: u32, u0: u32, v: u32) -> u32 {
+    const B: u32 = 1 << 16;
+    const LO: u32 = B - 1;
+    // v ≥ 2³¹, so v1 ≥ 2¹⁵; the fallback is never taken.
+    let Some(v1_nz) = NonZeroU32::new(v >> 16) else {
+        return u32::MAX;
+    };
+    let (v1, v0) = (v >> 16, v & LO);
+    let (un1, un0) = (u0 >> 16, u0 & LO);
+
+    // u1 < v < (v1 + 1)·B, so q1 < B + 2. Before q1·v0, q1 < B (< 2³²); before rhat·B,
+    // rhat < B (≤ 2³² − B, + un1 < 2³²).
+    let mut q1 = u1 / v1_nz;
+    let mut rhat = u1 - q1 * v1;
+    while q1 >= B || q1 * v0 > (rhat << 16) + un1 {
+        q1 -= 1;
+        rhat += v1;
+        if rhat >= B {
+            break;
+        }
+    }
+    // The partial remainder, below v: exact modulo 2³².
+    let un21 = (u1 << 16)
+        .wrapping_add(un1)
+        .wrapping_sub(q1.wrapping_mul(v));
+
+    let mut q0 = un21 / v1_nz;
+    let mut rhat = un21 - q0 * v1;
+    while q0 >= B || q0 * v0 > (rhat << 16) + un0 {
+        q0 -= 1;
+        rhat += v1;
+        if rhat >= B {
+            break;
+        }
+    }
+    (q1 << 16) | q0
+}
+
+/// `u / v` for a normalised `v` (≥ 2³¹), so the quotient is below 2³³: the top bit by one
+/// comparison, the rest by [`div_u64_by_u32_norm`] (where a `u64` division would call
+/// compiler-builtins' `__aeabi_uldivmod`, some 200 instructions on the Cortex-M3).
+#[inline(always)]
+fn div_u64_by_u32_wide(u: u64, v: u32) -> u64 {
+    let (uh, ul) = ((u >> 32) as u32, u as u32);
+    // uh < 2³² ≤ 2v, so after one subtraction uh < v.
+    let (qh, uh) = if uh >= v { (1u64, uh - v) } else { (0, uh) };
+    (qh << 32) | div_u64_by_u32_norm(uh, ul, v) as u64
+}
+
+/// `(u1·2⁶⁴ + u0) / v` for `u1 < v` (so the quotient fits in a `u64`): long division in 32-bit
+/// digits with a normalised divisor (Knuth's algorithm D as `divlu` in Hacker's Delight,
+/// 2nd ed., fig. 9–3), so each quotient digit is one 64-by-32-bit division
+/// ([`div_u64_by_u32_wide`]) and at most two corrections, where a `u128` division expands to a
+/// bit-by-bit loop on a 32-bit core.
+#[inline(always)]
+fn div_u128_by_u64(u1: u64, u0: u64, v: u64) -> u64 {
+    const B: u64 = 1 << 32;
+    const LO: u64 = B - 1;
+    // v > u1 ≥ 0.
+    let s = v.leading_zeros();
+    let v = v << s;
+    let (vn1, vn0) = (v >> 32, v & LO);
+    // u1 < v, so u1 << s does not lose bits; (u0 >> 1) >> (63 − s) is u0 >> (64 − s), and 0
+    // for s = 0, with no shift by 64.
+    let un32 = (u1 << s) | ((u0 >> 1) >> (63 - s));
+    let un10 = u0 << s;
+    let (un1, un0) = (un10 >> 32, un10 & LO);
+
+    // First digit: q̂ from the top two digits (un32 < v < (vn1 + 1)·B, so q̂ < B + 2),
+    // corrected at most twice; vn1 ≥ 2³¹, as `div_u64_by_u32_wide` needs.
+    let mut q1 = div_u64_by_u32_wide(un32, vn1 as u32);
+    let mut rhat = un32 - q1 * vn1;
+    // q1 < B before q1·vn0 (< 2⁶⁴); rhat < B before B·rhat (≤ 2⁶⁴ − B, + un1 < 2⁶⁴).
+    while q1 >= B || q1 * vn0 > (rhat << 32) + un1 {
+        q1 -= 1;
+        rhat += vn1;
+        if rhat >= B {
+            break;
+        }
+    }
+    // The partial remainder, below v: exact modulo 2⁶⁴.
+    let un21 = (un32 << 32)
+        .wrapping_add(un1)
+        .wrapping_sub(q1.wrapping_mul(v));
+
+    // Second digit (un21 < v, as un32 above).
+    let mut q0 = div_u64_by_u32_wide(un21, vn1 as u32);
+    let mut rhat = un21 - q0 * vn1;
+    while q0 >= B || q0 * vn0 > (rhat << 32) + un0 {
+        q0 -= 1;
+        rhat += vn1;
+        if rhat >= B {
+            break;
+        }
+    }
+    (q1 << 32) | q0
+}
+
+/// `a·2^frac / d` rounded to nearest (ties away from zero) and saturated to `i64`, a division
+/// by zero giving the saturated value of `a`'s sign (0/0 = 0): bit for bit the `i128`
+/// computation `q = (|n| + |d|/2) / |d|` with `n = a·2^frac`, negated when the signs differ,
+/// then saturated (the reference in `tests/fixed_arith.rs`). `frac` must be in 1..=63.
+#[inline(always)]
+fn div_round_sat(a: i64, d: i64, frac: u32) -> i64 {
+    if d == 0 {
+        return if a > 0 {
+            i64::MAX
+        } else if a < 0 {
+            i64::MIN
+        } else {
+            0
+        };
+    }
+    let (na, da) = (a.unsigned_abs(), d.unsigned_abs());
+    let neg = (a < 0) != (d < 0);
+    // N = |a|·2^frac + ⌊|d|/2⌋ < 2⁹⁶ as (hi, lo); hi < 2^frac, so hi + 1 does not overflow.
+    let (lo, carry) = (na << frac).overflowing_add(da >> 1);
+    let hi = (na >> (64 - frac)) + carry as u64;
+    // hi ≥ |d| means a quotient of at least 2⁶⁴: saturated either way.
+    let q = if hi >= da {
+        u64::MAX
+    } else {
+        div_u128_by_u64(hi, lo, da)
+    };
+    if neg {
+        // −q ≥ i64::MIN iff q ≤ 2⁶³ (q = 2⁶³ gives i64::MIN itself).
+        if q > 1 << 63 {
+            i64::MIN
+        } else {
+            (q as i64).wrapping_neg()
+        }
+    } else if q > i64::MAX as u64 {
+        i64::MAX
+    } else {
+        q as i64
+    }
+}
 
 macro_rules! fixed {
     ($name:ident, $frac:expr, $table:ident, $doc:expr) => {
@@ -41,17 +241,6 @@ macro_rules! fixed {
             /// Fractional bits.
             pub const FRAC: u32 = $frac;
             const SCALE: f64 = (1u64 << $frac) as f64;
-
-            #[inline(always)]
-            fn sat(x: i128) -> Self {
-                $name(if x > i64::MAX as i128 {
-                    i64::MAX
-                } else if x < i64::MIN as i128 {
-                    i64::MIN
-                } else {
-                    x as i64
-                })
-            }
 
             const fn from_f64_const(x: f64) -> Self {
                 let v = x * Self::SCALE;
@@ -89,41 +278,14 @@ macro_rules! fixed {
             type Output = Self;
             #[inline(always)]
             fn mul(self, o: Self) -> Self {
-                let p = self.0 as i128 * o.0 as i128;
-                // Round to nearest, ties away from zero: add half an LSB of the magnitude.
-                let half = 1i128 << ($frac - 1);
-                let r = if p >= 0 {
-                    (p + half) >> $frac
-                } else {
-                    -((-p + half) >> $frac)
-                };
-                Self::sat(r)
+                $name(mul_round_sat(self.0, o.0, $frac))
             }
         }
         impl Div for $name {
             type Output = Self;
             #[inline(always)]
             fn div(self, o: Self) -> Self {
-                if o.0 == 0 {
-                    return $name(if self.0 > 0 {
-                        i64::MAX
-                    } else if self.0 < 0 {
-                        i64::MIN
-                    } else {
-                        0
-                    });
-                }
-                // |n| < 2^127 and |d| ≥ 1: neither overflows nor divides by zero.
-                let n = (self.0 as i128) << $frac;
-                let d = o.0 as i128;
-                let (na, da) = (n.unsigned_abs(), d.unsigned_abs());
-                let q = (na + da / 2) / da;
-                let q = if q > i128::MAX as u128 {
-                    i128::MAX
-                } else {
-                    q as i128
-                };
-                Self::sat(if (n < 0) != (d < 0) { -q } else { q })
+                $name(div_round_sat(self.0, o.0, $frac))
             }
         }
         impl AddAssign for $name {
@@ -220,6 +382,50 @@ fixed!(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The long division's building blocks against `u128` division on their whole contract
+    /// (`u1 < v`, any `v`), beyond the operands the Q formats give them.
+    #[test]
+    fn long_division_matches_u128() {
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            // xorshift64*
+            x ^= x >> 12;
+            x ^= x << 25;
+            x ^= x >> 27;
+            x.wrapping_mul(0x2545_f491_4f6c_dd1d)
+        };
+        for i in 0..200_000u32 {
+            // Divisors of every length, and words near the digit boundaries.
+            let v = match i % 4 {
+                0 => next() >> (next() % 64),
+                1 => next() | 1 << 63,
+                2 => (1u64 << (next() % 64))
+                    .wrapping_add(next() % 3)
+                    .wrapping_sub(1),
+                _ => next() >> 32,
+            }
+            .max(1);
+            let u1 = match i % 3 {
+                0 => next() % v,
+                1 => v - 1,
+                _ => (next() >> (next() % 64)) % v,
+            };
+            let u0 = if i % 5 == 0 { u64::MAX } else { next() };
+            let n = (u1 as u128) << 64 | u0 as u128;
+            assert_eq!(
+                div_u128_by_u64(u1, u0, v) as u128,
+                n / v as u128,
+                "{u1:#x}:{u0:#x} / {v:#x}"
+            );
+            let w = (v >> 32) as u32 | 1 << 31;
+            assert_eq!(
+                div_u64_by_u32_wide(u0, w),
+                u0 / w as u64,
+                "{u0:#x} / {w:#x}"
+            );
+        }
+    }
 
     #[test]
     fn arithmetic_rounds_to_nearest_and_saturates() {
