@@ -147,6 +147,32 @@ pub struct Dynamics {
     pub inertial_n: f64,
     /// Largest C·|Ḋ| (N).
     pub damping_n: f64,
+    /// The larger of the two over the force range of the curve.
+    pub to_force_range: f64,
+    /// The larger of the two as a deflection (F/K) over the deflection noise of the free
+    /// approach: above 1 the recording could show what the quasi-static law leaves out.
+    pub to_noise: f64,
+    /// Whether the quasi-static law may neglect them: `to_noise < 1`.
+    pub neglected: bool,
+}
+
+impl Dynamics {
+    /// The larger of the inertial and damping bounds (N).
+    pub fn worst_n(&self) -> f64 {
+        self.inertial_n.max(self.damping_n)
+    }
+
+    /// Judges the bounds against the curve: its force range (N), the lever's spring
+    /// constant (N/m) and the deflection noise (m). A force the noise hides cannot be told
+    /// from it by any fit, so that is the line; the force-range ratio is reported beside.
+    fn judge(mut self, force_range_n: f64, k_n_per_m: f64, noise_m: f64) -> Self {
+        let worst = self.worst_n();
+        self.to_force_range = worst / force_range_n;
+        self.to_noise = worst / k_n_per_m / noise_m;
+        // NaN (no noise measured) is not neglected.
+        self.neglected = self.to_noise < 1.0;
+        self
+    }
 }
 
 /// A lower bound on f₀ and Q for levers used in force spectroscopy in liquid (soft levers of
@@ -307,7 +333,11 @@ pub fn identify(rec: &Recording, path: &Path, opts: &Options) -> Result<ForceCur
         });
 
     // What the quasi-static law leaves out: bounds on M·Z̈ and C·Ḋ.
-    let dynamics = dynamics_bounds(rec, &z, &moving_average(d, 2));
+    let dynamics = dynamics_bounds(rec, &z, &moving_average(d, 2)).judge(
+        max_force - min_force,
+        k_cant,
+        baseline.noise_m,
+    );
     let vendor_force = rec.extra_column("force_vendor_n").map(|f| {
         let diff = d
             .iter()
@@ -682,6 +712,9 @@ fn dynamics_bounds(rec: &Recording, z: &[f64], d_s: &[f64]) -> Dynamics {
         source,
         inertial_n: m * acc,
         damping_n: c * vel,
+        to_force_range: f64::NAN,
+        to_noise: f64::NAN,
+        neglected: false,
     }
 }
 
@@ -690,7 +723,6 @@ impl ForceCurveFit {
     pub fn to_json(&self, rec: &Recording) -> Json {
         let b = &self.baseline;
         let dyn_ = &self.dynamics;
-        let worst = dyn_.inertial_n.max(dyn_.damping_n);
         let mut j = Json::obj()
             .with(
                 "model",
@@ -700,22 +732,33 @@ impl ForceCurveFit {
             .with(
                 "cantilever_dynamics",
                 Json::obj()
-                    .with("neglected", true)
+                    .with("neglected", dyn_.neglected)
                     .with(
                         "why",
                         format!(
-                            "quasi-static: the largest inertial force M·|Z̈| ({:.2e} N) and \
-                             damping force C·|Ḋ| ({:.2e} N) are {:.1e} of the force range \
-                             ({:.2e} N); f0 = {} Hz, Q = {} ({})",
+                            "{}: the largest inertial force M·|Z̈| ({:.2e} N) and damping force \
+                             C·|Ḋ| ({:.2e} N) bend the lever by {:.2} times the deflection \
+                             noise ({:.2e} m) and are {:.1e} of the force range ({:.2e} N); \
+                             f0 = {} Hz, Q = {} ({})",
+                            if dyn_.neglected {
+                                "quasi-static, the noise hides the lever's dynamics"
+                            } else {
+                                "NOT quasi-static, the lever's dynamics exceed the noise and \
+                                 the fit leaves them out"
+                            },
                             dyn_.inertial_n,
                             dyn_.damping_n,
-                            worst / self.force_range_n,
+                            dyn_.to_noise,
+                            self.baseline.noise_m,
+                            dyn_.to_force_range,
                             self.force_range_n,
                             dyn_.f0_hz,
                             dyn_.q,
                             dyn_.source
                         ),
                     )
+                    .with("to_noise", dyn_.to_noise)
+                    .with("to_force_range", dyn_.to_force_range)
                     .with("inertial_force_max_n", dyn_.inertial_n)
                     .with("damping_force_max_n", dyn_.damping_n)
                     .with("f0_hz", dyn_.f0_hz)

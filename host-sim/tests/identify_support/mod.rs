@@ -3,6 +3,8 @@
 //! supplies with them, and running the `visco` command.
 #![allow(dead_code)]
 
+pub mod pins;
+
 use std::path::{Path, PathBuf};
 
 use visco::plant::{Plant, PlantConfig};
