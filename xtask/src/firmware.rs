@@ -2462,8 +2462,9 @@ fn interrupt_ranges(dis: &str) -> Vec<std::ops::Range<u32>> {
 /// status, estimates) and every record of closed-loop runs of the host build of the core:
 /// the scenarios above and the paper's DIVE (5 × 5 taps) and SVE (two lines) at 500 kHz as
 /// in `cargo run --release -p visco --example explore -- 500e3 both 5`. Equal digests before
-/// and after a change of the core mean bit-identical results.
-pub fn core_digest() -> Result<()> {
+/// and after a change of the core mean bit-identical results. One line per run; the expected
+/// lines are committed in `xtask/core-digests.txt` (`crate::digest`).
+pub fn core_digest_lines() -> Result<Vec<String>> {
     let explore = |mode: Mode| {
         let n = 5.0;
         let mut fields = vec![("sample_rate_hz", 500e3)];
@@ -2519,6 +2520,7 @@ pub fn core_digest() -> Result<()> {
         }
         (s, Number::Q32)
     });
+    let mut lines = Vec::new();
     for (s, number) in f32_runs.into_iter().chain(q32_runs) {
         let sim = simulate_as(&s, number)?;
         let mut rd = visco_protocol::crc::Crc32::new();
@@ -2526,7 +2528,7 @@ pub fn core_digest() -> Result<()> {
             rd.update(format!("{r:?}").as_bytes());
         }
         let last = sim.records.last();
-        println!(
+        lines.push(format!(
             "{:<20} {:<6} {:>9} samples  steps {:08x}  {:>4} records {:08x}  last record c {:e} k {:e} h {:e}",
             s.name,
             number.name(),
@@ -2537,9 +2539,10 @@ pub fn core_digest() -> Result<()> {
             last.map_or(0.0, |r| r.c_ns_per_m),
             last.map_or(0.0, |r| r.k_n_per_m),
             last.map_or(0.0, |r| r.height_m),
-        );
+        ));
+        eprintln!("core digest: {}", lines[lines.len() - 1]);
     }
-    Ok(())
+    Ok(lines)
 }
 
 // ---------------------------------------------------------------- ITCM check

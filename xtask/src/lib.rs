@@ -1,6 +1,7 @@
 //! `cargo xtask` tasks as a library, so the top-level `cargo xtask test` can call
 //! [`firmware_tests`].
 
+pub mod digest;
 pub mod firmware;
 pub mod fuzz;
 pub mod suite;

@@ -36,8 +36,10 @@ fn usage() -> &'static str {
                                 executed instructions of the loop interrupt per function and
                                 per instruction (QEMU exec log) in a bench window: dive-dwell,
                                 dive-readout, sve-scan
-  core-digest                   CRC-32 of every output of closed-loop runs of the host core
-                                (equal before and after a core change: bit-identical results)
+  core-digest [--bless]         CRC-32 of every output of closed-loop runs of the host core
+                                (equal before and after a core change: bit-identical results),
+                                compared with xtask/core-digests.txt; --bless rewrites the file
+                                (an intended change of the core's results: same commit, reason)
   defmt ELF STREAM              decode a defmt stream (e.g. QEMU semihosting output)
   fuzz [--seconds N] [--target T]
                                 every host parser under libFuzzer (cargo-fuzz, nightly; installs
@@ -187,7 +189,7 @@ fn main() -> ExitCode {
             .map(|_| ()),
             "link-throughput" => firmware::link_throughput(),
             "lockstep" => firmware::lockstep().map(|_| ()),
-            "core-digest" => firmware::core_digest(),
+            "core-digest" => xtask::digest::run(rest.iter().any(|a| a == "--bless")),
             "profile" => {
                 firmware::ensure_tools()?;
                 let img = firmware::build_image(machine(rest), number(rest))?;

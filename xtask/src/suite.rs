@@ -4,7 +4,8 @@
 //!    `apt-get`), failing loudly when it cannot — never skipping.
 //! 2. Checks formatting.
 //! 3. Builds the identification core for `thumbv7em-none-eabihf` (no_std, no heap).
-//! 4. Runs every host test of the workspace (core, protocol, host tools, end-to-end).
+//! 4. Runs every host test of the workspace (core, protocol, host tools, end-to-end), and
+//!    compares the core's closed-loop digests with the committed `xtask/core-digests.txt`.
 //! 5. Runs the firmware's tests: both boards build, no panic path is linked, the QEMU image
 //!    boots, SysTick is calibrated, replay under QEMU is bit-identical to the host; the same
 //!    for the fixed-point (Q31.32) build on the Cortex-M3, with its instruction counts and
@@ -65,6 +66,10 @@ pub fn run_all() -> Result<()> {
     step("host tests (cargo test)", || {
         cargo(&["test", "--workspace", "--exclude", "visco-firmware"])
     })?;
+    step(
+        "core digests equal to xtask/core-digests.txt (bit-identical core)",
+        || crate::digest::check(&firmware::core_digest_lines()?),
+    )?;
     step("firmware tests (QEMU)", firmware::firmware_tests)?;
     eprintln!("all tests passed in {:.0} s", t.elapsed().as_secs_f64());
     Ok(())
