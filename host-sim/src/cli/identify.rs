@@ -26,7 +26,8 @@ the recorded U and D in, the estimates out.
   sve          maps of c, k, h and per-element c, k, forward and backward lines averaged,
                as CSV grids in --out DIR
   force-curve  contact point, the element bed's per-area k_a and c_a (quasi-static sphere
-               on a Kelvin-Voigt bed; cantilever dynamics neglected), aggregate and per element
+               on a Kelvin-Voigt bed; whether the lever's dynamics may be neglected, judged
+               against the noise), aggregate and per element
 
 Every mode simulates its nominal model with the identified values from the recorded U and
 writes the RMS misfit against the recorded D, and the series as <stem>_fit.csv.

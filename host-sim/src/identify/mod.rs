@@ -228,11 +228,24 @@ fn run(path: &Path, meta: &Metadata, opts: &Options, out: Outputs) -> Result<Rep
             fj.set("figure_png", png.display().to_string());
             j.set("fit", fj);
             let mut notes = fit.notes.clone();
+            let d = &fit.dynamics;
             notes.insert(
                 0,
-                "cantilever dynamics neglected: the curve is quasi-static (see \
-                 cantilever_dynamics)"
-                    .to_string(),
+                if d.neglected {
+                    format!(
+                        "cantilever dynamics neglected: the curve is quasi-static, the lever's \
+                         dynamic force bends it by {:.2}× the deflection noise (see \
+                         cantilever_dynamics)",
+                        d.to_noise
+                    )
+                } else {
+                    format!(
+                        "cantilever dynamics NOT negligible: the lever's dynamic force bends it \
+                         by up to {:.2}× the deflection noise, which the quasi-static fit leaves \
+                         out (see cantilever_dynamics; f0 and Q {})",
+                        d.to_noise, d.source
+                    )
+                },
             );
             j.set("notes", notes);
             let rms = fit.rms_misfit_m;
