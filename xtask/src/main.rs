@@ -1,226 +1,342 @@
-//! `cargo xtask <task>`: see `usage()`.
+//! `cargo xtask <task>`: the workspace's task runner (`cargo xtask --help`).
+//!
+//! Arguments are parsed by `clap`, so a mistyped task or flag is an error with the usage,
+//! never silently ignored.
 
+use clap::{Args, Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use xtask::firmware;
 
-fn usage() -> &'static str {
-    "usage: cargo xtask <task>
-  firmware                      build both boards (qemu, stm32h743) in release, print sizes
-  qemu-smoke [--steps N]        boot the QEMU image, run N loop samples per mode, check the log
-  panic-check                   prove no panic path is linked (panic-never handler + canary)
-  calibrate [--shifts 0,3,6] [--m3]
-                                SysTick ticks vs counted instructions under -icount
-  bench [--steps N] [--shift S] [--m3] [--fixed] [--gradient]
-        [--window idle|dive-dwell|dive-readout|sve-scan]
-                                instructions per loop interrupt: core stopped, DIVE dwell, DIVE
-                                read-out, SVE scan, over closed-loop recordings (--m3: the
-                                thumbv7m-none-eabi build on mps2-an385, Cortex-M3, soft float;
-                                --fixed: the core in Q31.32, feature fixed-point; --gradient:
-                                the gradient estimator in both modes)
-  replay [--full] [--m3] [--fixed]
-                                replay a closed-loop DIVE tap and SVE line through QEMU, compare
-                                with the host bit for bit (digests per block, or --full: every
-                                field of every sample; --m3 --fixed: the Q31.32 build on the
-                                Cortex-M3 against the host's Q31.32 core)
-  firmware-report [--json FILE] [--no-replay]
-                                all measurements; JSON as documented in firmware/README.md
-  test                          everything: install tools, fmt, no_std build, host tests,
-                                firmware tests (what CI runs)
-  firmware-test                 what `cargo xtask test` runs for the firmware
-  flash-stm32h743 [--chip C]    build the STM32H743 image and run it with probe-rs (RTT log)
-  link-throughput               diagnostic: each direction of the QEMU UART link alone
-  lockstep                      closed loop: host plant ↔ firmware under QEMU, one round trip
-                                per sample, an SVE line segment, compared with the host-only run
-  profile [--window W] [--steps N] [--m3] [--fixed] [--gradient]
-                                executed instructions of the loop interrupt per function and
-                                per instruction (QEMU exec log) in a bench window: dive-dwell,
-                                dive-readout, sve-scan
-  core-digest [--bless]         CRC-32 of every output of closed-loop runs of the host core
-                                (equal before and after a core change: bit-identical results),
-                                compared with xtask/core-digests.txt; --bless rewrites the file
-                                (an intended change of the core's results: same commit, reason)
-  defmt ELF STREAM              decode a defmt stream (e.g. QEMU semihosting output)
-  fuzz [--seconds N] [--target T]
-                                every host parser under libFuzzer (cargo-fuzz, nightly; installs
-                                cargo-fuzz), seeded with the real recordings; N s per target"
+#[derive(Parser)]
+#[command(
+    name = "cargo xtask",
+    bin_name = "cargo xtask",
+    about = "visco's task runner"
+)]
+struct Cli {
+    #[command(subcommand)]
+    task: Task,
 }
 
-fn arg_value(args: &[String], name: &str) -> Option<String> {
-    args.iter()
-        .position(|a| a == name)
-        .and_then(|i| args.get(i + 1).cloned())
+/// Which firmware image: core, number format and estimator.
+#[derive(Args, Clone, Copy)]
+struct ImageArgs {
+    /// The thumbv7m-none-eabi build on mps2-an385 (Cortex-M3, soft float); default: the
+    /// Cortex-M7 on mps2-an500.
+    #[arg(long)]
+    m3: bool,
+    /// The core in Q31.32 (feature fixed-point); default f32.
+    #[arg(long)]
+    fixed: bool,
 }
 
-fn num<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> Result<T, String> {
-    match arg_value(args, name) {
-        None => Ok(default),
-        Some(v) => v
-            .parse()
-            .map_err(|_| format!("{name} needs a number, got {v:?}")),
+impl ImageArgs {
+    fn machine(self) -> firmware::Machine {
+        if self.m3 {
+            firmware::M3
+        } else {
+            firmware::M7
+        }
+    }
+    fn number(self) -> firmware::Number {
+        if self.fixed {
+            firmware::Number::Q32
+        } else {
+            firmware::Number::F32
+        }
     }
 }
 
-/// `--m3`: the Cortex-M3 build on mps2-an385; else the Cortex-M7 on mps2-an500.
-fn machine(args: &[String]) -> firmware::Machine {
-    if args.iter().any(|a| a == "--m3") {
-        firmware::M3
-    } else {
-        firmware::M7
+/// Bench and profile windows of a closed-loop recording.
+#[derive(ValueEnum, Clone, Copy)]
+enum Window {
+    Idle,
+    DiveDwell,
+    DiveReadout,
+    SveScan,
+}
+
+impl Window {
+    fn name(self) -> &'static str {
+        match self {
+            Window::Idle => "idle",
+            Window::DiveDwell => "dive-dwell",
+            Window::DiveReadout => "dive-readout",
+            Window::SveScan => "sve-scan",
+        }
     }
 }
 
-/// `--fixed`: the core in Q31.32 (feature `fixed-point`); else f32.
-fn number(args: &[String]) -> firmware::Number {
-    if args.iter().any(|a| a == "--fixed") {
-        firmware::Number::Q32
-    } else {
-        firmware::Number::F32
-    }
-}
-
-/// `--gradient`: the gradient estimator in both modes; else least squares.
-fn estimator(args: &[String]) -> firmware::Estimator {
-    if args.iter().any(|a| a == "--gradient") {
+fn estimator(gradient: bool) -> firmware::Estimator {
+    if gradient {
         firmware::Estimator::Gradient
     } else {
         firmware::Estimator::LeastSquares
     }
 }
 
-fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let Some(task) = args.first().cloned() else {
-        eprintln!("{}", usage());
-        return ExitCode::FAILURE;
-    };
-    let rest = &args[1..];
-    let result = (|| -> Result<(), String> {
-        match task.as_str() {
-            "firmware" => firmware::build_all().map(|_| ()),
-            "qemu-smoke" => firmware::qemu_smoke(num(rest, "--steps", 30_000)?),
-            "panic-check" => firmware::panic_check(),
-            "calibrate" => {
-                firmware::ensure_tools()?;
-                let shifts: Vec<u32> = arg_value(rest, "--shifts")
-                    .unwrap_or_else(|| "0,3,6".into())
-                    .split(',')
-                    .map(|s| s.trim().parse().map_err(|_| format!("bad shift {s:?}")))
-                    .collect::<Result<_, _>>()?;
-                let m = if rest.iter().any(|a| a == "--m3") {
-                    firmware::M3
-                } else {
-                    firmware::M7
-                };
-                let elf = firmware::build_for(m.target, firmware::Board::Qemu, &[])?;
-                println!("{} ({}), {}", m.machine, m.cpu, m.target);
-                let c = firmware::calibrate_on(m, &elf, &shifts)?;
-                for p in &c.points {
-                    println!(
-                        "shift={} iterations={} instructions={} ticks={} instructions/tick={:.4}",
-                        p.shift,
-                        p.iterations,
-                        p.instructions,
-                        p.ticks,
-                        f64::from(p.instructions) / f64::from(p.ticks)
-                    );
-                }
-                for (shift, m, e) in &c.slopes {
-                    println!("shift={shift}: slope {m:.6} instructions/tick, expected 40/2^{shift} = {e:.6}");
-                }
-                Ok(())
+#[derive(Subcommand)]
+enum Task {
+    /// Build both boards (qemu, stm32h743) in release, print sizes.
+    Firmware,
+    /// Boot the QEMU image, run N loop samples per mode, check the log.
+    QemuSmoke {
+        #[arg(long, default_value_t = 30_000)]
+        steps: u32,
+    },
+    /// Prove no panic path is linked (panic-never handler + canary).
+    PanicCheck,
+    /// SysTick ticks vs counted instructions under -icount.
+    Calibrate {
+        /// SysTick shifts to measure, comma separated.
+        #[arg(long, value_delimiter = ',', default_value = "0,3,6")]
+        shifts: Vec<u32>,
+        /// The Cortex-M3 build on mps2-an385.
+        #[arg(long)]
+        m3: bool,
+    },
+    /// Instructions per loop interrupt: core stopped, DIVE dwell, DIVE read-out, SVE scan,
+    /// over closed-loop recordings.
+    Bench {
+        #[arg(long, default_value_t = firmware::BENCH_STEPS)]
+        steps: u32,
+        #[arg(long, default_value_t = 0)]
+        shift: u32,
+        #[command(flatten)]
+        image: ImageArgs,
+        /// The gradient estimator in both modes; default least squares.
+        #[arg(long)]
+        gradient: bool,
+        /// Only this window; default all.
+        #[arg(long, value_enum)]
+        window: Option<Window>,
+    },
+    /// Replay a closed-loop DIVE tap and SVE line through QEMU, compare with the host bit for
+    /// bit (digests per block, or --full: every field of every sample).
+    Replay {
+        #[arg(long)]
+        full: bool,
+        #[command(flatten)]
+        image: ImageArgs,
+    },
+    /// All firmware measurements; JSON as documented in firmware/README.md.
+    FirmwareReport {
+        #[arg(long)]
+        json: Option<PathBuf>,
+        #[arg(long)]
+        no_replay: bool,
+    },
+    /// Everything: install tools, fmt, no_std build, host tests, firmware tests (what CI runs).
+    Test,
+    /// What `cargo xtask test` runs for the firmware.
+    FirmwareTest,
+    /// Build the STM32H743 image and run it with probe-rs (RTT log).
+    FlashStm32h743 {
+        #[arg(long, default_value = "STM32H743ZITx")]
+        chip: String,
+    },
+    /// Diagnostic: each direction of the QEMU UART link alone.
+    LinkThroughput,
+    /// Closed loop: host plant <-> firmware under QEMU, one round trip per sample, an SVE line
+    /// segment, compared with the host-only run.
+    Lockstep,
+    /// Executed instructions of the loop interrupt per function and per instruction (QEMU exec
+    /// log) in a bench window.
+    Profile {
+        #[arg(long, value_enum, default_value = "sve-scan")]
+        window: Window,
+        #[arg(long, default_value_t = 200)]
+        steps: u32,
+        #[command(flatten)]
+        image: ImageArgs,
+        /// The gradient estimator in both modes; default least squares.
+        #[arg(long)]
+        gradient: bool,
+    },
+    /// CRC-32 of every output of closed-loop runs of the host core (equal before and after a
+    /// core change: bit-identical results), compared with xtask/core-digests.txt.
+    CoreDigest {
+        /// Rewrite xtask/core-digests.txt (an intended change of the core's results: same
+        /// commit, with the reason).
+        #[arg(long)]
+        bless: bool,
+    },
+    /// Decode a defmt stream (e.g. QEMU semihosting output).
+    Defmt { elf: PathBuf, stream: PathBuf },
+    /// Every host parser under libFuzzer (cargo-fuzz, nightly; installs cargo-fuzz), seeded with
+    /// the real recordings; N s per target.
+    Fuzz {
+        #[arg(long, default_value_t = 60)]
+        seconds: u64,
+        #[arg(long)]
+        target: Option<String>,
+    },
+}
+
+fn run(task: Task) -> Result<(), String> {
+    match task {
+        Task::Firmware => firmware::build_all().map(|_| ()),
+        Task::QemuSmoke { steps } => firmware::qemu_smoke(steps),
+        Task::PanicCheck => firmware::panic_check(),
+        Task::Calibrate { shifts, m3 } => {
+            firmware::ensure_tools()?;
+            let m = if m3 { firmware::M3 } else { firmware::M7 };
+            let elf = firmware::build_for(m.target, firmware::Board::Qemu, &[])?;
+            println!("{} ({}), {}", m.machine, m.cpu, m.target);
+            let c = firmware::calibrate_on(m, &elf, &shifts)?;
+            for p in &c.points {
+                println!(
+                    "shift={} iterations={} instructions={} ticks={} instructions/tick={:.4}",
+                    p.shift,
+                    p.iterations,
+                    p.instructions,
+                    p.ticks,
+                    f64::from(p.instructions) / f64::from(p.ticks)
+                );
             }
-            "bench" => {
-                firmware::ensure_tools()?;
-                let steps = num(rest, "--steps", firmware::BENCH_STEPS)?;
-                let shift = num(rest, "--shift", 0u32)?;
-                let e = estimator(rest);
-                let img = firmware::build_image(machine(rest), number(rest))?;
-                println!("{}, estimator: {}", img.describe(), e.name());
-                let b = firmware::bench_all(
-                    &img,
-                    steps,
-                    shift,
-                    arg_value(rest, "--window").as_deref(),
-                    e,
-                )?;
-                firmware::print_bench(&b);
-                Ok(())
+            for (shift, m, e) in &c.slopes {
+                println!(
+                    "shift={shift}: slope {m:.6} instructions/tick, expected 40/2^{shift} = {e:.6}"
+                );
             }
-            "replay" => {
-                firmware::ensure_tools()?;
-                let img = firmware::build_image(machine(rest), number(rest))?;
-                println!("{}", img.describe());
-                let mut ok = true;
-                for s in [firmware::dive_tap(), firmware::sve_line()] {
-                    let r = firmware::replay_image(&img, &s, rest.iter().any(|a| a == "--full"))?;
-                    println!(
-                        "replay {}: {} samples, {:.0} samples/s, bit-identical {}, {} records \
-                         identical {}, reproduces the closed-loop recording {}, link: {}",
-                        r.name,
-                        r.samples,
-                        r.samples_per_s,
-                        r.bit_identical,
-                        r.records,
-                        r.records_identical,
-                        r.reproduces_recording,
-                        r.stats
-                    );
-                    ok &= r.bit_identical && r.records_identical;
-                }
-                if ok {
-                    Ok(())
-                } else {
-                    Err("replay is not bit-identical".into())
-                }
-            }
-            "firmware-report" => firmware::firmware_report(
-                arg_value(rest, "--json").map(PathBuf::from).as_deref(),
-                !rest.iter().any(|a| a == "--no-replay"),
-            ),
-            "firmware-test" => firmware::firmware_tests(),
-            // Placeholder until the workspace's own `test` task lands: the host tests of the
-            // default members, then the firmware tests.
-            "test" => xtask::suite::run_all(),
-            "fuzz" => xtask::fuzz::run(
-                num(rest, "--seconds", 60u64)?,
-                arg_value(rest, "--target").as_deref(),
-            )
-            .map(|_| ()),
-            "link-throughput" => firmware::link_throughput(),
-            "lockstep" => firmware::lockstep().map(|_| ()),
-            "core-digest" => xtask::digest::run(rest.iter().any(|a| a == "--bless")),
-            "profile" => {
-                firmware::ensure_tools()?;
-                let img = firmware::build_image(machine(rest), number(rest))?;
-                println!("{}, estimator: {}", img.describe(), estimator(rest).name());
-                firmware::profile_image(
-                    &img,
-                    &arg_value(rest, "--window").unwrap_or_else(|| "sve-scan".into()),
-                    num(rest, "--steps", 200u32)?,
-                    estimator(rest),
-                )
-            }
-            "flash-stm32h743" => firmware::flash_stm32h743(
-                &arg_value(rest, "--chip").unwrap_or_else(|| "STM32H743ZITx".into()),
-            ),
-            "defmt" => {
-                let (Some(elf), Some(stream)) = (rest.first(), rest.get(1)) else {
-                    return Err(usage().into());
-                };
-                for l in firmware::decode_defmt(elf.as_ref(), stream.as_ref())? {
-                    println!("{l}");
-                }
-                Ok(())
-            }
-            _ => Err(format!("unknown task {task:?}\n{}", usage())),
+            Ok(())
         }
-    })();
-    match result {
+        Task::Bench {
+            steps,
+            shift,
+            image,
+            gradient,
+            window,
+        } => {
+            firmware::ensure_tools()?;
+            let e = estimator(gradient);
+            let img = firmware::build_image(image.machine(), image.number())?;
+            println!("{}, estimator: {}", img.describe(), e.name());
+            let b = firmware::bench_all(&img, steps, shift, window.map(Window::name), e)?;
+            firmware::print_bench(&b);
+            Ok(())
+        }
+        Task::Replay { full, image } => {
+            firmware::ensure_tools()?;
+            let img = firmware::build_image(image.machine(), image.number())?;
+            println!("{}", img.describe());
+            let mut ok = true;
+            for s in [firmware::dive_tap(), firmware::sve_line()] {
+                let r = firmware::replay_image(&img, &s, full)?;
+                println!(
+                    "replay {}: {} samples, {:.0} samples/s, bit-identical {}, {} records \
+                     identical {}, reproduces the closed-loop recording {}, link: {}",
+                    r.name,
+                    r.samples,
+                    r.samples_per_s,
+                    r.bit_identical,
+                    r.records,
+                    r.records_identical,
+                    r.reproduces_recording,
+                    r.stats
+                );
+                ok &= r.bit_identical && r.records_identical;
+            }
+            if ok {
+                Ok(())
+            } else {
+                Err("replay is not bit-identical".into())
+            }
+        }
+        Task::FirmwareReport { json, no_replay } => {
+            firmware::firmware_report(json.as_deref(), !no_replay)
+        }
+        Task::Test => xtask::suite::run_all(),
+        Task::FirmwareTest => firmware::firmware_tests(),
+        Task::FlashStm32h743 { chip } => firmware::flash_stm32h743(&chip),
+        Task::LinkThroughput => firmware::link_throughput(),
+        Task::Lockstep => firmware::lockstep().map(|_| ()),
+        Task::Profile {
+            window,
+            steps,
+            image,
+            gradient,
+        } => {
+            firmware::ensure_tools()?;
+            let e = estimator(gradient);
+            let img = firmware::build_image(image.machine(), image.number())?;
+            println!("{}, estimator: {}", img.describe(), e.name());
+            firmware::profile_image(&img, window.name(), steps, e)
+        }
+        Task::CoreDigest { bless } => xtask::digest::run(bless),
+        Task::Defmt { elf, stream } => {
+            for l in firmware::decode_defmt(&elf, &stream)? {
+                println!("{l}");
+            }
+            Ok(())
+        }
+        Task::Fuzz { seconds, target } => xtask::fuzz::run(seconds, target.as_deref()).map(|_| ()),
+    }
+}
+
+fn main() -> ExitCode {
+    // An unknown task or flag exits here with the usage (clap's exit code 2).
+    let cli = Cli::parse();
+    match run(cli.task) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
             ExitCode::FAILURE
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn the_command_line_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn an_unknown_flag_or_task_is_an_error() {
+        for bad in [
+            &["cargo xtask", "bench", "--bogus"][..],
+            &["cargo xtask", "tset"],
+            &["cargo xtask", "bench", "--window", "sve"],
+            &["cargo xtask", "qemu-smoke", "--steps", "many"],
+        ] {
+            assert!(Cli::try_parse_from(bad).is_err(), "{bad:?} was accepted");
+        }
+    }
+
+    #[test]
+    fn flags_reach_the_task() {
+        let cli =
+            Cli::try_parse_from(["cargo xtask", "calibrate", "--shifts", "1,2", "--m3"]).unwrap();
+        match cli.task {
+            Task::Calibrate { shifts, m3 } => assert!(shifts == [1, 2] && m3),
+            _ => panic!("parsed as another task"),
+        }
+        let cli = Cli::try_parse_from([
+            "cargo xtask",
+            "bench",
+            "--window",
+            "dive-readout",
+            "--m3",
+            "--fixed",
+        ])
+        .unwrap();
+        match cli.task {
+            Task::Bench {
+                window,
+                image,
+                gradient,
+                ..
+            } => {
+                assert_eq!(window.map(Window::name), Some("dive-readout"));
+                assert!(image.m3 && image.fixed && !gradient);
+            }
+            _ => panic!("parsed as another task"),
         }
     }
 }

@@ -7,12 +7,10 @@
 use std::fs::{self, File};
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::error::{IdentifyError, Result};
+use crate::output::atomic::{AtomicError, PendingFile};
 use crate::recording::format_f64;
-
-static COUNTER: AtomicU64 = AtomicU64::new(0);
 
 /// Where a report and its companion files go: `--out DIR`, else the report's directory; and
 /// the stem the companions are named after. Refuses a report without a file name, an output
@@ -71,25 +69,22 @@ fn same_file(a: &Path, b: &Path) -> bool {
     }
 }
 
-/// Files written under temporary names, renamed together.
+/// Files written under temporary names ([`crate::output::atomic`]), renamed together.
 #[derive(Debug, Default)]
 pub struct Staged {
-    files: Vec<(PathBuf, PathBuf)>,
-    committed: bool,
+    files: Vec<PendingFile>,
 }
 
 /// A text file being written, under its temporary name.
 pub struct StagedWriter {
     out: Option<BufWriter<File>>,
-    tmp: PathBuf,
-    path: PathBuf,
-    finished: bool,
+    pending: PendingFile,
 }
 
 impl StagedWriter {
     /// The final path.
     pub fn path(&self) -> &Path {
-        &self.path
+        self.pending.path()
     }
 
     /// Appends text.
@@ -97,12 +92,23 @@ impl StagedWriter {
         match self.out.as_mut() {
             Some(out) => out
                 .write_all(s.as_bytes())
-                .map_err(|e| IdentifyError::io(&self.path, "cannot write", &e)),
+                .map_err(|e| IdentifyError::io(self.pending.path(), "cannot write", &e)),
             None => Err(IdentifyError::new(
-                &self.path,
+                self.pending.path(),
                 "written after it was finished",
             )),
         }
+    }
+}
+
+fn atomic_error(path: &Path, e: AtomicError) -> IdentifyError {
+    match e {
+        AtomicError::NoFileName => IdentifyError::new(path, "not a file name"),
+        AtomicError::NoDirectory(dir) => {
+            IdentifyError::new(path, "the output directory does not exist")
+                .with_fix(format!("create {} first", dir.display()))
+        }
+        AtomicError::Io(what, err) => IdentifyError::io(path, what, &err),
     }
 }
 
@@ -114,47 +120,27 @@ impl Staged {
 
     /// Starts a file that will become `path`.
     pub fn create(&mut self, path: &Path) -> Result<StagedWriter> {
-        let dir = match path.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        if !dir.is_dir() {
-            return Err(
-                IdentifyError::new(path, "the output directory does not exist")
-                    .with_fix(format!("create {} first", dir.display())),
-            );
-        }
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .ok_or_else(|| IdentifyError::new(path, "not a file name"))?;
-        let tmp = dir.join(format!(
-            ".{name}.tmp-{}-{}",
-            std::process::id(),
-            COUNTER.fetch_add(1, Ordering::Relaxed)
-        ));
-        let file = File::create(&tmp).map_err(|e| IdentifyError::io(path, "cannot create", &e))?;
+        let (file, pending) = PendingFile::create(path).map_err(|e| atomic_error(path, e))?;
         Ok(StagedWriter {
             out: Some(BufWriter::with_capacity(1 << 16, file)),
-            tmp,
-            path: path.to_path_buf(),
-            finished: false,
+            pending,
         })
     }
 
     /// Finishes a file started with [`Staged::create`]; it is renamed at [`Staged::commit`].
+    /// (A writer dropped unfinished was abandoned: its temporary file goes with it.)
     pub fn finish(&mut self, mut w: StagedWriter) -> Result<()> {
+        let path = w.pending.path().to_path_buf();
         let out = w
             .out
             .take()
-            .ok_or_else(|| IdentifyError::new(&w.path, "finished twice"))?;
+            .ok_or_else(|| IdentifyError::new(&path, "finished twice"))?;
         let file = out
             .into_inner()
-            .map_err(|e| IdentifyError::io(&w.path, "cannot write", e.error()))?;
+            .map_err(|e| IdentifyError::io(&path, "cannot write", e.error()))?;
         file.sync_all()
-            .map_err(|e| IdentifyError::io(&w.path, "cannot write", &e))?;
-        w.finished = true;
-        self.files.push((w.tmp.clone(), w.path.clone()));
+            .map_err(|e| IdentifyError::io(&path, "cannot write", &e))?;
+        self.files.push(w.pending);
         Ok(())
     }
 
@@ -182,50 +168,27 @@ impl Staged {
         path: &Path,
         render: impl FnOnce(&Path) -> crate::output::Result<()>,
     ) -> Result<()> {
-        let w = self.create(path)?;
-        let tmp = w.tmp.clone();
-        render(&tmp).map_err(|e| IdentifyError::new(path, e.reason))?;
-        let mut w = w;
-        w.out.take();
-        w.finished = true;
-        self.files.push((tmp, path.to_path_buf()));
+        let (file, pending) = PendingFile::create(path).map_err(|e| atomic_error(path, e))?;
+        drop(file);
+        render(pending.temp_path()).map_err(|e| IdentifyError::new(path, e.reason))?;
+        self.files.push(pending);
         Ok(())
     }
 
     /// The final paths staged so far.
     pub fn paths(&self) -> Vec<PathBuf> {
-        self.files.iter().map(|(_, p)| p.clone()).collect()
+        self.files.iter().map(|p| p.path().to_path_buf()).collect()
     }
 
-    /// Renames every staged file into place, in the order staged.
-    pub fn commit(mut self) -> Result<Vec<PathBuf>> {
-        for (tmp, path) in &self.files {
-            fs::rename(tmp, path).map_err(|e| {
-                IdentifyError::io(path, "cannot move the finished file into place", &e)
-            })?;
+    /// Renames every staged file into place, in the order staged; dropped uncommitted, the
+    /// temporary files are removed.
+    pub fn commit(self) -> Result<Vec<PathBuf>> {
+        let paths = self.paths();
+        for p in self.files {
+            let path = p.path().to_path_buf();
+            p.commit().map_err(|e| atomic_error(&path, e))?;
         }
-        self.committed = true;
-        Ok(self.paths())
-    }
-}
-
-impl Drop for StagedWriter {
-    fn drop(&mut self) {
-        // A writer dropped unfinished was abandoned: its file goes.
-        if !self.finished {
-            self.out.take();
-            let _ = fs::remove_file(&self.tmp);
-        }
-    }
-}
-
-impl Drop for Staged {
-    fn drop(&mut self) {
-        if !self.committed {
-            for (tmp, _) in &self.files {
-                let _ = fs::remove_file(tmp);
-            }
-        }
+        Ok(paths)
     }
 }
 

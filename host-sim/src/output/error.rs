@@ -1,10 +1,8 @@
-//! The one error type of the output layer, and the atomic file write every writer goes through.
+//! The one error type of the output layer, and its atomic file write.
 
 use std::fmt;
 use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 /// A failure to write or read an output file. It always names the file; `Display` prints
 /// `PATH: reason`, one line, like the rest of the `visco` command's errors.
@@ -42,52 +40,9 @@ impl std::error::Error for OutputError {}
 /// Short for results of the output layer.
 pub type Result<T> = std::result::Result<T, OutputError>;
 
-static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
-
-/// Writes `bytes` to `path` atomically: into a hidden temporary file in the same directory,
-/// flushed to disk, then renamed over `path`. A failure at any step removes the temporary
-/// file and leaves `path` as it was (absent, or the previous complete file).
-///
-/// The directory must exist: creating it is the caller's decision (a typo in `--out` should
-/// fail, not silently create a tree).
+/// Writes `bytes` to `path` atomically ([`super::atomic`]), naming the file in the error.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .ok_or_else(|| OutputError::new(path, "the path names no file"))?;
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    if !dir.is_dir() {
-        return Err(OutputError::new(
-            path,
-            format!(
-                "cannot write: the directory {} does not exist",
-                dir.display()
-            ),
-        ));
-    }
-    let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
-    let tmp = dir.join(format!(".{name}.{}.{n}.tmp", std::process::id()));
-    let result = (|| {
-        let mut f = fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&tmp)
-            .map_err(|e| OutputError::io(path, "cannot create the file", &e))?;
-        f.write_all(bytes)
-            .map_err(|e| OutputError::io(path, "cannot write the file", &e))?;
-        f.sync_all()
-            .map_err(|e| OutputError::io(path, "cannot flush the file", &e))?;
-        drop(f);
-        fs::rename(&tmp, path)
-            .map_err(|e| OutputError::io(path, "cannot move the finished file into place", &e))
-    })();
-    if result.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    result
+    super::atomic::write_atomic(path, bytes).map_err(|e| OutputError::new(path, e.to_string()))
 }
 
 /// Reads a whole file, naming it in the error.

@@ -12,6 +12,7 @@
 //! Every writer replaces its file atomically (temporary file + rename), so a failure leaves
 //! no partial file, and every error names the file ([`OutputError`]).
 
+pub mod atomic;
 pub mod csv;
 pub mod error;
 pub mod figure;

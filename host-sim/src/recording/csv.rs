@@ -16,11 +16,11 @@
 //! - UTF-8; `\r\n` line ends are accepted (files pass through Windows tools), blank lines are
 //!   not.
 
+use crate::output::atomic;
 use std::fmt::Write as _;
-use std::fs::{self, File};
+use std::fs::File;
 use std::io::{self, BufRead, BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::error::{ErrorKind, RecordingError, Result};
 use super::{check_column_name, check_key, check_range, columns, keys};
@@ -531,38 +531,34 @@ fn parse_header(path: &Path, line: u64, text: &str, mode: Mode) -> Result<(Colum
     Ok((cols, slots))
 }
 
-static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
-
-/// A complete output file still under its temporary name. [`PendingFile::commit`] renames it
-/// into place; dropping it removes it. Lets a command write several files all-or-nothing.
+/// A complete output file still under its temporary name ([`crate::output::atomic`], with the
+/// recording layer's errors). [`PendingFile::commit`] renames it into place; dropping it removes
+/// it. Lets a command write several files all-or-nothing.
 #[derive(Debug)]
-pub struct PendingFile {
-    tmp: PathBuf,
-    path: PathBuf,
-    committed: bool,
-}
+pub struct PendingFile(atomic::PendingFile);
 
 impl PendingFile {
     /// The final path.
     pub fn path(&self) -> &Path {
-        &self.path
+        self.0.path()
     }
 
     /// Renames the temporary file to its final name (replacing an existing file).
-    pub fn commit(mut self) -> Result<()> {
-        fs::rename(&self.tmp, &self.path).map_err(|e| {
-            RecordingError::io(&self.path, "cannot move the finished file into place", &e)
-        })?;
-        self.committed = true;
-        Ok(())
+    pub fn commit(self) -> Result<()> {
+        let path = self.0.path().to_path_buf();
+        self.0.commit().map_err(|e| atomic_error(&path, e))
     }
 }
 
-impl Drop for PendingFile {
-    fn drop(&mut self) {
-        if !self.committed {
-            let _ = fs::remove_file(&self.tmp);
+fn atomic_error(path: &Path, e: atomic::AtomicError) -> RecordingError {
+    match e {
+        atomic::AtomicError::NoFileName => {
+            RecordingError::new(path, ErrorKind::Usage, "the output path names no file")
         }
+        atomic::AtomicError::NoDirectory(_) => {
+            RecordingError::new(path, ErrorKind::Io, e.to_string())
+        }
+        atomic::AtomicError::Io(what, err) => RecordingError::io(path, what, &err),
     }
 }
 
@@ -600,28 +596,9 @@ impl RecordingWriter {
                 "cannot write: an `sve` recording needs the columns x_m and y_m",
             ));
         }
-        let dir = match path.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .ok_or_else(|| {
-                RecordingError::new(path, ErrorKind::Usage, "the output path names no file")
-            })?;
-        let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
-        let tmp = dir.join(format!(".{name}.{}.{n}.tmp", std::process::id()));
-        let file = fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&tmp)
-            .map_err(|e| RecordingError::io(path, "cannot create the output file", &e))?;
-        let pending = PendingFile {
-            tmp,
-            path: path.to_path_buf(),
-            committed: false,
-        };
+        let (file, pending) =
+            atomic::PendingFile::create(path).map_err(|e| atomic_error(path, e))?;
+        let pending = PendingFile(pending);
         let mut w = RecordingWriter {
             pending: Some(pending),
             out: Some(BufWriter::with_capacity(1 << 16, file)),
@@ -639,7 +616,7 @@ impl RecordingWriter {
     fn path(&self) -> &Path {
         self.pending
             .as_ref()
-            .map(|p| p.path.as_path())
+            .map(|p| p.path())
             .unwrap_or(Path::new(""))
     }
 
