@@ -36,16 +36,16 @@ enum What {
 struct Out {
     sve: Vec<sweep::SweepPoint>,
     dive: Vec<sweep::SweepPoint>,
-    sve_fastest_within_5pct: Option<sweep::SweepPoint>,
-    dive_fastest_within_5pct: Option<sweep::SweepPoint>,
+    sve_fastest_meeting_goal: Option<sweep::SweepPoint>,
+    dive_fastest_meeting_goal: Option<sweep::SweepPoint>,
     excitation: Vec<excitation_study::Candidate>,
     notes: Vec<String>,
 }
 
 fn print_point(name: &str, p: &sweep::SweepPoint) {
     eprintln!(
-        "{name} {:>7.3} s: {:>7.1} px/s  RMS h/c/k {:>6.2} / {:>6.2} / {:>6.2} %  max {:>6.1} / {:>6.1} / {:>6.1} %  failed {}",
-        p.period_s, p.pixels_per_s, p.rms_error_pct[0], p.rms_error_pct[1], p.rms_error_pct[2], p.max_error_pct[0], p.max_error_pct[1], p.max_error_pct[2], p.failed
+        "{name} {:>7.3} s: {:>7.1} px/s  RMS h/c/k {:>6.2} / {:>6.2} / {:>6.2} %  max away from steep {:>6.2} / {:>6.2} / {:>6.2} %  failed {}  {}",
+        p.period_s, p.pixels_per_s, p.rms_error_pct[0], p.rms_error_pct[1], p.rms_error_pct[2], p.max_error_not_steep_pct[0], p.max_error_not_steep_pct[1], p.max_error_not_steep_pct[2], p.failed, if sweep::meets_goal(p) { "meets the goal" } else { "" }
     );
 }
 
@@ -76,8 +76,8 @@ fn plot(
                     series(1, "c"),
                     series(2, "k"),
                     Series::dashed(
-                        "5 %",
-                        points.iter().map(|p| (p.pixels_per_s, 5.0)).collect(),
+                        "2 % (goal)",
+                        points.iter().map(|p| (p.pixels_per_s, 2.0)).collect(),
                     ),
                 ],
                 y_log: true,
@@ -96,10 +96,10 @@ pub fn run(args: SweepArgs) -> CliResult {
         out.sve = sweep::sve_sweep(&periods, args.rate, args.seed, |p| {
             print_point("SVE line period", p)
         })?;
-        out.sve_fastest_within_5pct = sweep::fastest_within(&out.sve, 5.0).cloned();
+        out.sve_fastest_meeting_goal = sweep::fastest_meeting_goal(&out.sve).cloned();
         plot(
             &args.out.join("sweep_sve.png"),
-            "SVE: accuracy against pixel rate (5 lines × 50 px)",
+            "SVE: accuracy against pixel rate (5 lines × 50 px, instrument scaling)",
             &out.sve,
         )?;
     }
@@ -108,10 +108,10 @@ pub fn run(args: SweepArgs) -> CliResult {
         out.dive = sweep::dive_sweep(&taps, args.rate, args.seed, |p| {
             print_point("DIVE tap time", p)
         })?;
-        out.dive_fastest_within_5pct = sweep::fastest_within(&out.dive, 5.0).cloned();
+        out.dive_fastest_meeting_goal = sweep::fastest_meeting_goal(&out.dive).cloned();
         plot(
             &args.out.join("sweep_dive.png"),
-            "DIVE: accuracy against pixel rate (5 × 5 taps)",
+            "DIVE: accuracy against pixel rate (5 × 5 taps, instrument scaling)",
             &out.dive,
         )?;
     }
@@ -127,17 +127,22 @@ pub fn run(args: SweepArgs) -> CliResult {
         }
     }
     out.notes = vec![
-        "errors in % of h_max, c_max, k_max against the footprint reference, paper scaling (see `visco demo`)".into(),
+        "errors in % of h_max, c_max, k_max against the footprint reference, instrument scaling, steep from the identified topography (see `visco demo`); paper_rms_error_pct: the paper's n = |W| scaling, needs the simulator's contact count".into(),
+        "goal: every RMS error <= 2 % and every error away from steep topography <= 5 %, no pixel lost".into(),
         "the loop is re-tuned to each speed by the rules in host-sim/src/experiment/sweep.rs".into(),
         "excitation: spread = relative standard deviation of the estimate over a 60 ms read-out at a fixed 10 ms memory; the time to a given accuracy scales with its square".into(),
     ];
     let json = serde_json::to_string_pretty(&out)?;
     visco::output::write_atomic(&args.out.join("sweep.json"), json.as_bytes())?;
-    if let Some(p) = &out.sve_fastest_within_5pct {
-        println!("SVE: fastest with every RMS error ≤ 5 %: line period {} s, {:.0} px/s (the paper: 25 px/s)", p.period_s, p.pixels_per_s);
+    match &out.sve_fastest_meeting_goal {
+        Some(p) => println!("SVE: fastest meeting RMS ≤ 2 %, max away from steep ≤ 5 %: line period {} s, {:.0} px/s (the paper: 25 px/s; goal ≥ 2000 px/s)", p.period_s, p.pixels_per_s),
+        None if !out.sve.is_empty() => println!("SVE: no line period meets RMS ≤ 2 %, max away from steep ≤ 5 %"),
+        None => {}
     }
-    if let Some(p) = &out.dive_fastest_within_5pct {
-        println!("DIVE: fastest with every RMS error ≤ 5 %: tap time {} s, {:.0} px/s (the paper: 5 px/s)", p.period_s, p.pixels_per_s);
+    match &out.dive_fastest_meeting_goal {
+        Some(p) => println!("DIVE: fastest meeting RMS ≤ 2 %, max away from steep ≤ 5 %: tap time {} s, {:.0} px/s (the paper: 5 px/s; goal ≥ 2000 px/s)", p.period_s, p.pixels_per_s),
+        None if !out.dive.is_empty() => println!("DIVE: no tap time meets RMS ≤ 2 %, max away from steep ≤ 5 %"),
+        None => {}
     }
     if let Some(best) = out.excitation.iter().min_by(|a, b| {
         a.relative_spread[0]

@@ -127,19 +127,20 @@ pub struct ModeReport {
     pub imaging_time_s: f64,
     /// Pixels per second of imaging time.
     pub pixels_per_s: f64,
-    /// RMS error, paper scaling (% of max).
+    /// RMS error, instrument scaling (% of max).
     pub rms_error_pct: Hck,
-    /// Largest error, paper scaling (% of max).
+    /// Largest error, instrument scaling (% of max).
     pub max_error_pct: Hck,
-    /// Largest error away from steep topography, paper scaling (% of max).
+    /// Largest error away from steep topography (identified), instrument scaling (% of max).
     pub max_error_not_steep_pct: Hck,
-    /// Mean error, paper scaling (% of max).
+    /// Mean error, instrument scaling (% of max).
     pub mean_error_pct: Hck,
-    /// The same figures with the instrument's scaling (n estimated from measured quantities).
-    pub instrument_scaling: ErrorBlock,
-    /// Slope |Δh|/pitch above which a footprint counts as steep.
+    /// The same figures with the paper's scaling n = |W| — the paper's definition, which needs
+    /// the simulator's contact count (an instrument does not have it).
+    pub paper_scaling: ErrorBlock,
+    /// Slope |∇ĥ| of the identified topography above which a footprint counts as steep.
     pub steep_slope: f64,
-    /// Pixels whose footprint is steep or reaches over the sample's border.
+    /// Pixels whose footprint is steep (identified topography) or reaches over the border.
     pub steep_pixels: usize,
     /// Taps or pixels flagged (no contact, short dwell) and left out.
     pub failed_pixels: usize,
@@ -434,13 +435,13 @@ pub fn run(opts: &DemoOptions) -> Result<DemoReport, DemoError> {
         pixels,
         imaging_time_s: imaging,
         pixels_per_s: pixels as f64 / imaging,
-        rms_error_pct: hck(&paper.h, &paper.c, &paper.k, |s| s.rms_pct),
-        max_error_pct: hck(&paper.h, &paper.c, &paper.k, |s| s.max_pct),
-        max_error_not_steep_pct: hck(&paper.h, &paper.c, &paper.k, |s| s.max_not_steep_pct),
-        mean_error_pct: hck(&paper.h, &paper.c, &paper.k, |s| s.mean_pct),
-        instrument_scaling: ErrorBlock::from(*instr),
+        rms_error_pct: hck(&instr.h, &instr.c, &instr.k, |s| s.rms_pct),
+        max_error_pct: hck(&instr.h, &instr.c, &instr.k, |s| s.max_pct),
+        max_error_not_steep_pct: hck(&instr.h, &instr.c, &instr.k, |s| s.max_not_steep_pct),
+        mean_error_pct: hck(&instr.h, &instr.c, &instr.k, |s| s.mean_pct),
+        paper_scaling: ErrorBlock::from(*paper),
         steep_slope: steep,
-        steep_pixels: paper.h.steep,
+        steep_pixels: instr.h.steep,
         failed_pixels: failed,
         simulated_s: sim,
         force_depth_exponent: None,
@@ -486,9 +487,9 @@ pub fn run(opts: &DemoOptions) -> Result<DemoReport, DemoError> {
         notes: vec![
             "errors in percent of h_max = 0.3 µm, c_max = 8e-7 N·s/m, k_max = 5e-3 N/m (the paper's Fig. 7)".into(),
             "reference: the given h, c, k averaged over the elements in contact (the active set W), each weighted by its time in contact while the estimate was averaged (DIVE read-out window, SVE pixel pass, forward and backward)".into(),
-            "paper scaling: per-element values = aggregate / n with n = |W| from the simulation, as in the paper (30)-(31); h = identified bed height + the mean sag of the sphere over W".into(),
-            "instrument scaling: n and the mean sag estimated from the measured effective depth, the identified local slope and the element lattice only (experiment::scaling)".into(),
-            format!("steep: a footprint containing an element whose height differs from a neighbour's by more than depth/(4·contact radius) per pitch (DIVE {:.3}, SVE {:.3}), or reaching beyond the sample's border", dive_steep, sve_steep),
+            "headline figures (rms/max/mean_error_pct): instrument scaling — n and the mean sag estimated from the measured effective depth, the identified topography around the pixel (gradient; for SVE also its curvature) and the element lattice (pitch, extent: a stated assumption about the bed) only (experiment::scaling)".into(),
+            "paper_scaling: the paper's definition, needs the simulator's contact count: per-element values = aggregate / n with n = |W| from the simulation (30)-(31); h = identified bed height + the mean sag of the sphere over W".into(),
+            format!("steep: a footprint where the identified topography's slope |∇ĥ| exceeds depth/(4·contact radius) (DIVE {:.3}, SVE {:.3}), or reaching beyond the sample's border", dive_steep, sve_steep),
             format!("planned imaging time {total_s:.1} s; simulated time includes the first approach and settle"),
         ],
     };
@@ -510,8 +511,9 @@ pub fn run(opts: &DemoOptions) -> Result<DemoReport, DemoError> {
     Ok(report)
 }
 
-/// A reduced demo (tests, `--quick`): 5 × 5 taps of 0.1 s over the whole sample, 5 lines of
-/// 1 s, the rest as the paper's.
+/// A reduced demo (tests, `--quick`): 5 × 5 taps of 0.1 s over the whole sample, 5 SVE lines of
+/// 1 s through the cell's middle at the full demo's 250 nm spacing (the instrument scaling needs
+/// lines closer than the contact's diameter, see [`super::run_sve`]), the rest as the paper's.
 pub fn reduce(setup: &mut Setup) {
     let c = &mut setup.config;
     let n = 5u32;
@@ -523,8 +525,8 @@ pub fn reduce(setup: &mut Setup) {
     c.dive.y0_m = 2.5e-6 / n as f64;
     c.dive.tap_s = 0.1;
     c.sve.lines = n;
-    c.sve.dy_m = 5e-6 / n as f64;
-    c.sve.y0_m = 2.5e-6 / n as f64;
+    c.sve.dy_m = 250e-9;
+    c.sve.y0_m = 2.5e-6 - 2.0 * c.sve.dy_m;
     c.sve.line_period_s = 1.0;
 }
 
@@ -650,8 +652,8 @@ fn write_outputs(
     for t in &dive.taps {
         let i = t.record.iy as usize * dive.nx + t.record.ix as usize;
         if i < d_est.len() && !t.failed {
-            d_est[i] = t.scaled.paper;
-            d_instr[i] = t.scaled.instrument;
+            d_est[i] = t.scaled.instrument;
+            d_instr[i] = t.scaled.paper;
             d_ref[i] = t.touched.reference;
             d_slope[i] = t.slope;
         }
@@ -672,17 +674,17 @@ fn write_outputs(
     let mut s_slope = vec![f64::NAN; sve.nx * sve.ny];
     for px in &sve.pixels {
         let i = px.line * sve.nx + px.pixel;
-        s_est[i] = px.scaled.paper;
-        s_instr[i] = px.scaled.instrument;
+        s_est[i] = px.scaled.instrument;
+        s_instr[i] = px.scaled.paper;
         s_ref[i] = px.touched.reference;
         s_slope[i] = px.slope;
     }
     let dive_maps = maps_of(dgrid, "DIVE", &d_est);
-    let dive_instr_maps = maps_of(dgrid, "DIVE (instrument scaling)", &d_instr);
+    let dive_instr_maps = maps_of(dgrid, "DIVE (paper scaling, n = |W|)", &d_instr);
     let dive_ref_maps = maps_of(dgrid, "given over the DIVE footprints", &d_ref);
     let dive_err = error_maps(dgrid, "DIVE", &d_est, &d_ref);
     let sve_maps = maps_of(sgrid, "SVE", &s_est);
-    let sve_instr_maps = maps_of(sgrid, "SVE (instrument scaling)", &s_instr);
+    let sve_instr_maps = maps_of(sgrid, "SVE (paper scaling, n = |W|)", &s_instr);
     let sve_ref_maps = maps_of(sgrid, "given over the SVE footprints", &s_ref);
     let sve_err = error_maps(sgrid, "SVE", &s_est, &s_ref);
     let r = c.tip_radius_m;
@@ -709,7 +711,7 @@ fn write_outputs(
         save_map(&maps_dir, &format!("dive_{}", names[q]), &dive_maps[q])?;
         save_map(
             &maps_dir,
-            &format!("dive_{}_instrument", names[q]),
+            &format!("dive_{}_paper", names[q]),
             &dive_instr_maps[q],
         )?;
         save_map(
@@ -725,7 +727,7 @@ fn write_outputs(
         save_map(&maps_dir, &format!("sve_{}", names[q]), &sve_maps[q])?;
         save_map(
             &maps_dir,
-            &format!("sve_{}_instrument", names[q]),
+            &format!("sve_{}_paper", names[q]),
             &sve_instr_maps[q],
         )?;
         save_map(
@@ -800,7 +802,11 @@ fn write_outputs(
     }
 
     // Fig. 8a: DIVE, the first row of taps against time, per element (paper scaling of each tap).
-    let first_row_n: Vec<f64> = dive.taps.iter().map(|t| t.touched.n.max(1.0)).collect();
+    let first_row_n: Vec<f64> = dive
+        .taps
+        .iter()
+        .map(|t| t.scaled.n_estimated.max(1.0))
+        .collect();
     let t0 = dtrace.points.first().map(|p| p.0).unwrap_or(0.0);
     let per_tap = |f: fn(&TracePoint, f64) -> f64| -> Vec<(f64, f64)> {
         dtrace
@@ -870,7 +876,7 @@ fn write_outputs(
             .clamp(0.0, (sve.nx - 1) as f64) as usize;
         sve.pixels
             .get(px)
-            .map(|p| p.touched.n.max(1.0))
+            .map(|p| p.scaled.n_estimated.max(1.0))
             .unwrap_or(1.0)
     };
     let y_line = c.sve.y0_m;
@@ -995,7 +1001,7 @@ pub fn summary_table(r: &DemoReport) -> String {
             m.max_error_not_steep_pct.k
         );
     }
-    s += "(paper scaling, n = |W|; the instrument's scaling is in report.json)\n";
+    s += "(instrument scaling; steep from the identified topography. The paper's n = |W| scaling, which needs the simulator's contact count, is in report.json's paper_scaling)\n";
     if let Some(b) = r.dive.force_depth_exponent {
         let q = r
             .dive

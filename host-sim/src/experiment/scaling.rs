@@ -42,22 +42,63 @@ pub fn swing(tip_amplitudes_m: [f64; 2]) -> Vec<f64> {
     v
 }
 
-/// Elements under a sphere of radius `r` at (x, y): for each, `eᵢ = g·dᵢ − sᵢ` (the bed's
+/// The identified bed around a pixel, to second order: `h(c + d) − h(c) = g·d + ½·dᵀ·H·d` about
+/// the pixel's centre c.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LocalBed {
+    /// Centre c (m).
+    pub centre_m: [f64; 2],
+    /// Gradient g = (∂h/∂x, ∂h/∂y) at c.
+    pub grad: [f64; 2],
+    /// Curvature H = (∂²h/∂x², ∂²h/∂x∂y, ∂²h/∂y²) at c (1/m).
+    pub curv_per_m: [f64; 3],
+}
+
+/// A model of the bed's height around the tip, from what the instrument identified: only
+/// height differences matter.
+pub trait Bed {
+    /// Height of the bed at (x, y) (m), up to a constant.
+    fn height(&self, x: f64, y: f64) -> f64;
+}
+
+impl Bed for LocalBed {
+    fn height(&self, x: f64, y: f64) -> f64 {
+        let (dx, dy) = (x - self.centre_m[0], y - self.centre_m[1]);
+        let [hxx, hxy, hyy] = self.curv_per_m;
+        self.grad[0] * dx
+            + self.grad[1] * dy
+            + 0.5 * (hxx * dx * dx + 2.0 * hxy * dx * dy + hyy * dy * dy)
+    }
+}
+
+impl LocalBed {
+    /// A plane through c of gradient `grad`.
+    pub fn plane(centre_m: [f64; 2], grad: [f64; 2]) -> Self {
+        Self {
+            centre_m,
+            grad,
+            curv_per_m: [0.0; 3],
+        }
+    }
+}
+
+/// Elements under a sphere of radius `r` at (x, y): for each, `eᵢ = b(xᵢ) − b(x) − sᵢ` (the bed's
 /// height relative to the sphere's surface, up to the apex depth) and its sag sᵢ.
 fn offsets(
     sample: &Sample,
     x: f64,
     y: f64,
     r: f64,
-    grad: [f64; 2],
+    bed: &(impl Bed + ?Sized),
     e: &mut Vec<f64>,
     sag: &mut Vec<f64>,
 ) {
     e.clear();
     sag.clear();
+    let b0 = bed.height(x, y);
     sample.for_each_within(x, y, r, |el| {
         let s = r - (r * r - el.r_m * el.r_m).max(0.0).sqrt();
-        e.push(grad[0] * (el.x_m - x) + grad[1] * (el.y_m - y) - s);
+        e.push(bed.height(el.x_m, el.y_m) - b0 - s);
         sag.push(s);
     });
 }
@@ -100,6 +141,26 @@ pub fn contact_for(
     grad: [f64; 2],
     swing: &[f64],
 ) -> LocalContact {
+    let c = path.first().map_or([0.0; 2], |p| [p.0, p.1]);
+    contact_on(
+        sample,
+        path,
+        r,
+        effective_depth_m,
+        &LocalBed::plane(c, grad),
+        swing,
+    )
+}
+
+/// [`contact_for`] on a curved bed.
+pub fn contact_on(
+    sample: &Sample,
+    path: &[(f64, f64)],
+    r: f64,
+    effective_depth_m: f64,
+    bed: &(impl Bed + ?Sized),
+    swing: &[f64],
+) -> LocalContact {
     if !(effective_depth_m > 0.0) {
         return LocalContact::default();
     }
@@ -108,7 +169,7 @@ pub fn contact_for(
     let (mut e, mut sag) = (Vec::with_capacity(64), Vec::with_capacity(64));
     let mut points: Vec<(Vec<f64>, Vec<f64>)> = Vec::with_capacity(path.len());
     for &(x, y) in path {
-        offsets(sample, x, y, r, grad, &mut e, &mut sag);
+        offsets(sample, x, y, r, bed, &mut e, &mut sag);
         if !e.is_empty() {
             points.push((e.clone(), sag.clone()));
         }
@@ -185,6 +246,91 @@ pub fn grid_gradient(h: &[f64], nx: usize, ny: usize, dx: f64, dy: f64) -> Vec<[
         }
     }
     g
+}
+
+/// Curvature (∂²h/∂x², ∂²h/∂x∂y, ∂²h/∂y²) of a regular grid of heights (row-major, `nx` × `ny`,
+/// spacing `dx`, `dy`), from second differences over ±2 columns (±1 where the grid ends or a
+/// neighbour is NaN: a wider stencil averages the identification's pixel noise) and ±1 row
+/// (one-sided at the ends). Without `resolve_y` (rows farther apart than the contact is wide:
+/// the rows do not see the same bed) only ∂²h/∂x² is kept. Zero where it cannot be formed.
+pub fn grid_curvature(
+    h: &[f64],
+    nx: usize,
+    ny: usize,
+    dx: f64,
+    dy: f64,
+    resolve_y: bool,
+) -> Vec<[f64; 3]> {
+    let at = |i: isize, j: isize| -> f64 {
+        if i < 0 || j < 0 || i >= nx as isize || j >= ny as isize {
+            f64::NAN
+        } else {
+            h[j as usize * nx + i as usize]
+        }
+    };
+    let d2 = |a: f64, b: f64, c: f64, d: f64| {
+        let v = (a - 2.0 * b + c) / (d * d);
+        if v.is_finite() {
+            v
+        } else {
+            0.0
+        }
+    };
+    let mut out = vec![[0.0; 3]; nx * ny];
+    for j in 0..ny as isize {
+        for i in 0..nx as isize {
+            let mut m = 2;
+            while m > 0 && !(at(i - m, j).is_finite() && at(i + m, j).is_finite()) {
+                m -= 1;
+            }
+            let hxx = if m > 0 {
+                d2(at(i - m, j), at(i, j), at(i + m, j), m as f64 * dx)
+            } else {
+                0.0
+            };
+            let (hxy, hyy) = if resolve_y {
+                let hyy = if at(i, j - 1).is_finite() && at(i, j + 1).is_finite() {
+                    d2(at(i, j - 1), at(i, j), at(i, j + 1), dy)
+                } else if at(i, j + 2).is_finite() {
+                    d2(at(i, j), at(i, j + 1), at(i, j + 2), dy)
+                } else {
+                    d2(at(i, j - 2), at(i, j - 1), at(i, j), dy)
+                };
+                let v = (at(i + 1, j + 1) - at(i - 1, j + 1) - at(i + 1, j - 1) + at(i - 1, j - 1))
+                    / (4.0 * dx * dy);
+                (if v.is_finite() { v } else { 0.0 }, hyy)
+            } else {
+                (0.0, 0.0)
+            };
+            out[j as usize * nx + i as usize] = [hxx, hxy, hyy];
+        }
+    }
+    out
+}
+
+/// The largest |∇h| within `reach_x` columns and `reach_y` rows of each grid point: the slope of
+/// the identified topography over a footprint.
+pub fn footprint_max_slope(
+    grad: &[[f64; 2]],
+    nx: usize,
+    ny: usize,
+    reach_x: usize,
+    reach_y: usize,
+) -> Vec<f64> {
+    let mut out = vec![0.0; nx * ny];
+    for j in 0..ny {
+        for i in 0..nx {
+            let mut m: f64 = 0.0;
+            for jj in j.saturating_sub(reach_y)..=(j + reach_y).min(ny - 1) {
+                for ii in i.saturating_sub(reach_x)..=(i + reach_x).min(nx - 1) {
+                    let g = grad[jj * nx + ii];
+                    m = m.max(g[0].hypot(g[1]));
+                }
+            }
+            out[j * nx + i] = m;
+        }
+    }
+    out
 }
 
 #[cfg(test)]
