@@ -15,18 +15,24 @@
 //! ([`crate::identify::signal::cap_volume`]): the sum of the paper's elements (5)–(8) for a
 //! pitch small next to the contact radius. The detector adds an offset d₀. Parameters: d₀, and
 //! per unit (a tap, a curve) the contact height h, k_a and c_a; for dynamic recordings also
-//! the input's hold β (below).
+//! the initial state, the header cantilever's calibration corrections and the input between
+//! samples (below).
 //!
 //! ## Dynamic and quasi-static recordings
 //! * **Dynamic** (the recording gives M and C, or f₀ and Q, and samples at ≥ 4 f₀): the
 //!   equation of motion is integrated from sample to sample. Over each interval the contact is
 //!   linearised at its start (stiffness k_a·A, damping c_a·A, the rest held) and the linear
-//!   equation solved exactly ([`crate::plant::linear::Propagator`], with a ramp input), so the
-//!   stiff contact (c/M ≈ 10⁶ s⁻¹) is no problem; where the contact's stiffness changes fast
-//!   (the touch, a shallow contact moving quickly) the interval is cut into sub-steps. What U
-//!   did between samples is not in a recording: a controller's DAC holds it (a staircase, the
-//!   plant's convention), a simulator may interpolate it. The input is
-//!   `(1 − β)·staircase + β·linear`, β ∈ [0, 1] fitted with the nominal parameters.
+//!   equation solved exactly ([`crate::plant::linear::Propagator`] for the homogeneous part, a
+//!   polynomial particular solution for a cubic input), so the stiff contact (c/M ≈ 10⁶ s⁻¹)
+//!   is no problem; where the contact's stiffness changes fast (the touch, a shallow contact
+//!   moving quickly) the interval is cut into sub-steps. What U did between samples is not in
+//!   a recording: a controller's DAC holds it (a staircase, the plant's convention), a
+//!   simulator or a smooth source interpolates it; [`Input`] is chosen by the fit.
+//!   A recording starts wherever the instrument was — mid-oscillation when the excitation
+//!   ran before it —, so the initial state (Z's departure from static equilibrium and Ż) is
+//!   fitted: the free response is linear in both. The header's f₀ and Q are calibrations, not
+//!   truths: small corrections are fitted under a Gaussian prior of their stated tolerance
+//!   (`search`).
 //! * **Quasi-static** (force curves: µm/s, kHz sampling, far below resonance): the cantilever
 //!   is a spring, `K·(U − Z) + F_ts + F_effects = 0` at every sample, solved implicitly
 //!   (backward Euler for the dampers), the effects' forces iterated to the sample's state.
@@ -69,15 +75,82 @@ pub struct Contact {
     pub c_a: f64,
 }
 
+/// What the base did between two recorded samples of U (dynamic models only).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Input {
+    /// Held at the new sample (a DAC's staircase, the plant's convention).
+    Held,
+    /// A straight line between the samples (a continuous source, sampled).
+    Linear,
+    /// A cubic through the two samples and their neighbours (Catmull–Rom: a smooth
+    /// command, such as the tones of an excitation, sampled; interpolation error O(ω⁴Δt⁴)
+    /// where the line's is O(ω²Δt²)).
+    Cubic,
+}
+
+impl Input {
+    /// Every convention, in the order they are tried.
+    pub const ALL: [Input; 3] = [Input::Held, Input::Linear, Input::Cubic];
+    /// For reports.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Input::Held => "held (a DAC's staircase)",
+            Input::Linear => "linear (a continuous source, sampled)",
+            Input::Cubic => "cubic through the neighbouring samples (a smooth command, sampled)",
+        }
+    }
+}
+
 /// The nominal parameters.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Nominal {
     /// Detector offset d₀ (nm).
     pub offset: f64,
-    /// Input between samples: 0 = held (staircase), 1 = linear (dynamic only).
-    pub hold: f64,
+    /// Input between samples (dynamic only).
+    pub input: Input,
+    /// Initial state (dynamic only): Z's departure from the static equilibrium with the first
+    /// U (nm) and Ż (nm/µs) at the first sample. A recording starts wherever the instrument
+    /// was — mid-oscillation when the excitation ran before it — and the free response is
+    /// linear in these two.
+    pub z0: f64,
+    pub v0: f64,
+    /// Calibration corrections of the header's cantilever (dynamic only): f₀ × `f0_scale`
+    /// (K kept, M adjusted) and Q × `q_scale`; 1 = the header's values.
+    pub f0_scale: f64,
+    pub q_scale: f64,
     /// Per unit.
     pub contacts: Vec<Contact>,
+}
+
+impl Nominal {
+    /// At rest in static equilibrium, the header's cantilever, the input held.
+    pub fn new(offset: f64, contacts: Vec<Contact>) -> Self {
+        Nominal {
+            offset,
+            input: Input::Held,
+            z0: 0.0,
+            v0: 0.0,
+            f0_scale: 1.0,
+            q_scale: 1.0,
+            contacts,
+        }
+    }
+    /// The instrument with the calibration corrections applied: M/f0_scale², C so that
+    /// Q·q_scale holds with the new M.
+    pub fn instrument(&self, inst: &Instrument) -> Instrument {
+        match inst.m {
+            Some(m) if self.f0_scale != 1.0 || self.q_scale != 1.0 => {
+                let fs = self.f0_scale.max(1e-6);
+                let qs = self.q_scale.max(1e-6);
+                Instrument {
+                    m: Some(m / (fs * fs)),
+                    c: inst.c / (fs * qs),
+                    ..inst.clone()
+                }
+            }
+            _ => inst.clone(),
+        }
+    }
 }
 
 /// The recording in internal units, with each sample's unit.
@@ -167,13 +240,19 @@ pub fn simulate(
         let (ek, ec) = e.linear_terms();
         (k + ek, c + ec)
     });
+    let inst = &nom.instrument(inst);
     let r = inst.r_tip;
     let contact_of = |i: usize| nom.contacts[data.unit[i].min(nom.contacts.len() - 1)];
-    // Start at rest in static equilibrium with the first U (effects' held forces excluded, as
-    // the plant's settle).
+    // Start from static equilibrium with the first U (effects' held forces excluded, as the
+    // plant's settle), displaced by the fitted initial state.
     let c0 = contact_of(0);
     let mut z = static_equilibrium(inst.k + k_lin, inst.k * data.u[0], c0, r);
     let mut v = 0.0;
+    if inst.dynamic() {
+        z += nom.z0;
+        v = nom.v0;
+    }
+    let mut cache = PropagatorCache::default();
     let mut u_eff_prev = data.u[0];
     let dt_first = if n > 1 { data.t[1] - data.t[0] } else { 1.0 };
     for i in 0..n {
@@ -205,7 +284,8 @@ pub fn simulate(
                         r,
                         ct,
                     };
-                    (z, v) = sys.interval(z, v, u_eff_prev, u_eff, nom.hold, f_eff, dt);
+                    let poly = input_polynomial(nom.input, data, i, u_eff_prev, u_eff);
+                    (z, v) = sys.interval(z, v, &poly, f_eff, dt, &mut cache);
                 }
                 None => {
                     (z, v) =
@@ -300,25 +380,104 @@ struct Dyn {
     ct: Contact,
 }
 
+/// The base over one sample interval: `u(s) = Σ c_j·s^j`, s ∈ [0, 1] from the previous
+/// sample to this one, and the velocity jump at its start (nm/µs·(nN·µs/nm)/mass: the held
+/// input's step through the base damping, C·Δu/M, applied as an impulse).
+#[derive(Clone, Copy, Debug)]
+struct InputPoly {
+    c: [f64; 4],
+    /// The step of U at the interval's start (nm), for the impulse C·Δu/M.
+    jump: f64,
+}
+
+/// The base's path between samples i − 1 and i under `input`; `u0`, `u1` are the effective
+/// base (after the effects' piezo hooks) at both ends. The cubic follows the commanded U's
+/// neighbours, the effects' change of the base riding on it linearly.
+#[inline]
+fn input_polynomial(input: Input, data: &Data, i: usize, u0: f64, u1: f64) -> InputPoly {
+    match input {
+        Input::Held => InputPoly {
+            c: [u1, 0.0, 0.0, 0.0],
+            jump: u1 - u0,
+        },
+        Input::Linear => InputPoly {
+            c: [u0, u1 - u0, 0.0, 0.0],
+            jump: 0.0,
+        },
+        Input::Cubic => {
+            let n = data.len();
+            let (a, b) = (data.u[i - 1], data.u[i]);
+            // Catmull–Rom tangents (per interval), one-sided at the ends.
+            let m0 = if i >= 2 {
+                0.5 * (b - data.u[i - 2])
+            } else {
+                b - a
+            };
+            let m1 = if i + 1 < n {
+                0.5 * (data.u[i + 1] - a)
+            } else {
+                b - a
+            };
+            let c2 = 3.0 * (b - a) - 2.0 * m0 - m1;
+            let c3 = 2.0 * (a - b) + m0 + m1;
+            // The effects' share: (u0 − a) → (u1 − b), linearly.
+            let (e0, e1) = (u0 - a, u1 - b);
+            InputPoly {
+                c: [a + e0, m0 + (e1 - e0), c2, c3],
+                jump: 0.0,
+            }
+        }
+    }
+}
+
+impl InputPoly {
+    /// The polynomial re-expanded about s0 in local time τ = (s − s0)·dt: (b0, b1, b2, b3).
+    #[inline]
+    fn local(&self, s0: f64, dt: f64) -> [f64; 4] {
+        let [c0, c1, c2, c3] = self.c;
+        let p = c0 + s0 * (c1 + s0 * (c2 + s0 * c3));
+        let d1 = c1 + s0 * (2.0 * c2 + 3.0 * s0 * c3);
+        let d2 = c2 + 3.0 * s0 * c3;
+        [p, d1 / dt, d2 / (dt * dt), c3 / (dt * dt * dt)]
+    }
+}
+
+/// The last propagator and its key: in free flight every interval has the same one, and
+/// `Propagator::new` (an exp and a sin/cos pair) is most of a free step's cost.
+#[derive(Default)]
+struct PropagatorCache {
+    key: (f64, f64, f64),
+    p: Propagator,
+}
+
+impl PropagatorCache {
+    #[inline]
+    fn get(&mut self, m: f64, c: f64, k: f64, tau: f64) -> Propagator {
+        if self.key != (c, k, tau) || self.key.2 == 0.0 {
+            self.key = (c, k, tau);
+            self.p = Propagator::new(m, c, k, tau);
+        }
+        self.p
+    }
+}
+
 impl Dyn {
-    /// Advances (z, v) over one sample interval of length `dt` with the base going from
-    /// `u0` to `u1` (`hold` = share of the linear input), an extra held force `f_eff`.
-    #[allow(clippy::too_many_arguments)]
+    /// Advances (z, v) over one sample interval of length `dt` with the base following
+    /// `poly`, an extra held force `f_eff`.
+    #[inline]
     fn interval(
         &self,
         z: f64,
         v: f64,
-        u0: f64,
-        u1: f64,
-        hold: f64,
+        poly: &InputPoly,
         f_eff: f64,
         dt: f64,
+        cache: &mut PropagatorCache,
     ) -> (f64, f64) {
-        // The held share jumps at the start: an impulse C·Δu/M through the base damping.
-        let du = u1 - u0;
-        let v = v + (1.0 - hold) * self.c_base * du / self.m;
+        // A held input jumps at the start: an impulse C·Δu/M through the base damping.
+        let v = v + self.c_base * poly.jump / self.m;
         // Trial step; cut into sub-steps where the contact stiffness changes fast.
-        let (z1, v1) = self.piece(z, v, u0, u1, hold, 0.0, 1.0, f_eff, dt);
+        let (z1, v1) = self.piece(z, v, poly, 0.0, 1.0, f_eff, dt, cache);
         let d0 = self.ct.h - z;
         let d1 = self.ct.h - z1;
         if !(d0 > 0.0 || d1 > 0.0) || self.ct.k_a <= 0.0 {
@@ -338,26 +497,26 @@ impl Dyn {
         let (mut zz, mut vv) = (z, v);
         for j in 0..n {
             let (s0, s1) = (j as f64 / n as f64, (j + 1) as f64 / n as f64);
-            (zz, vv) = self.piece(zz, vv, u0, u1, hold, s0, s1, f_eff, dt);
+            (zz, vv) = self.piece(zz, vv, poly, s0, s1, f_eff, dt, cache);
         }
         (zz, vv)
     }
 
     /// Exact solution over the fraction `[s0, s1]` of the interval with the contact linearised
-    /// at its start. The base there is `u(s) = (1 − β)·u1 + β·(u0 + (u1 − u0)·s)`.
+    /// at its start and the base a cubic in time: a polynomial particular solution, the
+    /// homogeneous deviation propagated exactly.
     #[allow(clippy::too_many_arguments)]
     #[inline]
     fn piece(
         &self,
         z: f64,
         v: f64,
-        u0: f64,
-        u1: f64,
-        hold: f64,
+        poly: &InputPoly,
         s0: f64,
         s1: f64,
         f_eff: f64,
         dt: f64,
+        cache: &mut PropagatorCache,
     ) -> (f64, f64) {
         let tau = (s1 - s0) * dt;
         let d = self.ct.h - z;
@@ -371,19 +530,28 @@ impl Dyn {
         } else {
             (0.0, 0.0, 0.0)
         };
-        let k_t = self.k + kt;
-        let c_t = self.c + ct;
-        // Input over the piece, in local time τ' ∈ [0, τ]: u = ua + g·τ'.
-        let g = hold * (u1 - u0) / dt;
-        let ua = (1.0 - hold) * u1 + hold * (u0 + (u1 - u0) * s0);
-        let f0 = self.k_base * ua + self.c_base * g + f_hold + f_eff;
-        let f1 = self.k_base * g;
-        // Particular solution α + γτ', then the homogeneous deviation exactly.
-        let gamma = f1 / k_t;
-        let alpha = (f0 - c_t * gamma) / k_t;
-        let p = Propagator::new(self.m, c_t, k_t, tau);
-        let (e1, ed1) = p.apply(z - alpha, v - gamma, 0.0);
-        (e1 + alpha + gamma * tau, ed1 + gamma)
+        let (k, c, m) = (self.k + kt, self.c + ct, self.m);
+        // Force K·u + C·u̇ + held terms as a cubic in local time: a0 + a1·τ + a2·τ² + a3·τ³.
+        let [b0, b1, b2, b3] = poly.local(s0, dt);
+        let (kb, cb) = (self.k_base, self.c_base);
+        let a0 = kb * b0 + cb * b1 + f_hold + f_eff;
+        let a1 = kb * b1 + 2.0 * cb * b2;
+        let a2 = kb * b2 + 3.0 * cb * b3;
+        let a3 = kb * b3;
+        // Particular solution p0 + p1·τ + p2·τ² + p3·τ³ of M·z̈ + c·ż + k·z = a(τ).
+        let p3 = a3 / k;
+        let p2 = (a2 - 3.0 * c * p3) / k;
+        let p1 = (a1 - 2.0 * c * p2 - 6.0 * m * p3) / k;
+        let p0 = (a0 - c * p1 - 2.0 * m * p2) / k;
+        let prop = if kt == 0.0 {
+            cache.get(m, c, k, tau)
+        } else {
+            Propagator::new(m, c, k, tau)
+        };
+        let (e1, ed1) = prop.apply(z - p0, v - p1, 0.0);
+        let zp = p0 + tau * (p1 + tau * (p2 + tau * p3));
+        let vp = p1 + tau * (2.0 * p2 + 3.0 * tau * p3);
+        (e1 + zp, ed1 + vp)
     }
 }
 

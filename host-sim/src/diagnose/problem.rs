@@ -234,11 +234,7 @@ impl Problem {
                 .iter()
                 .map(|&(a, b)| self.initial_contact(a, b, &ds, &us, offset, noise, k, r, departure))
                 .collect();
-            let nom = Nominal {
-                offset,
-                hold: 0.0,
-                contacts,
-            };
+            let nom = Nominal::new(offset, contacts);
             if out.iter().all(|o| {
                 o.contacts
                     .iter()

@@ -71,6 +71,7 @@ impl Options {
             alpha: self.alpha,
             max_effects: self.max_effects,
             kinds: self.effects.clone(),
+            ..SearchOptions::default()
         }
     }
 }
@@ -331,6 +332,40 @@ impl Diagnosis {
             );
         }
         let nn = &s.nominal_noise;
+        let nom = &s.nominal.nominal;
+        let (initial_state, calibration) = if p.inst.dynamic() {
+            let cal = nom.instrument(&p.inst);
+            (
+                Json::obj()
+                    .with(
+                        "model",
+                        "fitted: Z's departure from static equilibrium with the first U, and Ż, \
+                         at the first sample",
+                    )
+                    .with("z0_m", nom.z0 * LENGTH)
+                    .with("v0_m_per_s", nom.v0 * LENGTH / TIME),
+                Json::obj()
+                    .with(
+                        "model",
+                        format!(
+                            "the header's f0 and Q as calibrations: corrections fitted under a \
+                             Gaussian prior of {:.1} % (f0) and {:.0} % (Q), K kept",
+                            100.0 * super::search::F0_TOLERANCE,
+                            100.0 * super::search::Q_TOLERANCE
+                        ),
+                    )
+                    .with("f0_correction", nom.f0_scale)
+                    .with("q_correction", nom.q_scale)
+                    .with("f0_hz", cal.f0_mhz().map_or(f64::NAN, |f| f / TIME))
+                    .with(
+                        "q",
+                        cal.m
+                            .map_or(f64::NAN, |m| (cal.k * m).sqrt() / cal.c.max(1e-300)),
+                    ),
+            )
+        } else {
+            (Json::Null, Json::Null)
+        };
         Json::obj()
             .with("recording", recording)
             .with("nominal_model", NOMINAL_MODEL)
@@ -352,12 +387,12 @@ impl Diagnosis {
                         "input_between_samples",
                         if !p.inst.dynamic() {
                             "not used (quasi-static)"
-                        } else if s.nominal.nominal.hold > 0.5 {
-                            "linear (a continuous source, sampled)"
                         } else {
-                            "held (a DAC's staircase)"
+                            s.nominal.nominal.input.describe()
                         },
                     )
+                    .with("initial_state", initial_state)
+                    .with("calibration", calibration)
                     .with("offset_m", s.nominal.nominal.offset * LENGTH)
                     .with("contacts", Json::Arr(contacts))
                     .with(

@@ -21,7 +21,7 @@
 
 use super::candidates::{Candidate, Env};
 use super::fit::{levenberg_marquardt, linear_least_squares, ssr, LmOptions, Param};
-use super::model::{simulate, Nominal, Trace};
+use super::model::{simulate, Input, Nominal, Trace};
 use super::noise::{held_out_test, HeldOut, NoiseModel, MAX_ORDER};
 use super::problem::Problem;
 use crate::plant::effects::{Effect, EffectKind};
@@ -58,8 +58,22 @@ enum Slot {
     Height(usize),
     Ka(usize),
     Ca(usize),
+    Z0,
+    V0,
+    F0,
+    Q,
     Effect(usize, usize),
 }
+
+/// Stated tolerance (1 σ) of a header's f₀ as a calibration: a thermal tune finds the
+/// resonance to a few 0.1 % (and the lever's f₀ shifts with temperature and liquid by as
+/// much); the correction is fitted under a Gaussian prior of this width.
+pub const F0_TOLERANCE: f64 = 0.005;
+/// Stated tolerance (1 σ) of a header's Q, relative (a ring-down or a thermal tune's width
+/// gives Q to about 5 %). A drag on the lever beyond it is the effect's to explain.
+pub const Q_TOLERANCE: f64 = 0.05;
+/// Hard bounds of the corrections, in tolerances.
+const CALIBRATION_BOUND: f64 = 4.0;
 
 /// A fitted extension and its test against the model it extends.
 #[derive(Clone, Debug)]
@@ -164,6 +178,9 @@ pub struct SearchOptions {
     pub max_effects: usize,
     /// The candidates (default: all ten).
     pub kinds: Vec<EffectKind>,
+    /// Threads fitting a stage's candidates (default: the machine's cores; the result does
+    /// not depend on it).
+    pub threads: usize,
 }
 
 impl Default for SearchOptions {
@@ -172,6 +189,7 @@ impl Default for SearchOptions {
             alpha: 0.01,
             max_effects: 3,
             kinds: EffectKind::ALL.to_vec(),
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
         }
     }
 }
@@ -215,6 +233,34 @@ impl Problem {
                 Param::linear("c_a", c.c_a, 0.0, 1e300, c_scale),
             ));
         }
+        if let Some(f0) = self.inst.f0_mhz() {
+            let w0 = 2.0 * std::f64::consts::PI * f0;
+            out.push((Slot::Z0, Param::linear("z0_nm", nom.z0, -1e7, 1e7, 1.0)));
+            out.push((
+                Slot::V0,
+                Param::linear("v0_nm_per_us", nom.v0, -1e7, 1e7, w0),
+            ));
+            let b = CALIBRATION_BOUND;
+            out.push((
+                Slot::F0,
+                Param::linear(
+                    "f0_scale",
+                    nom.f0_scale,
+                    1.0 - b * F0_TOLERANCE,
+                    1.0 + b * F0_TOLERANCE,
+                    0.1 * F0_TOLERANCE,
+                ),
+            ));
+            out.push((
+                Slot::Q,
+                Param::logarithmic(
+                    "q_scale",
+                    nom.q_scale,
+                    (-b * Q_TOLERANCE).exp(),
+                    (b * Q_TOLERANCE).exp(),
+                ),
+            ));
+        }
         for (i, (cand, vals)) in m.effects.iter().enumerate() {
             for (j, p) in cand.params.iter().enumerate() {
                 if p.shape && !p.smooth {
@@ -235,6 +281,10 @@ impl Problem {
                 Slot::Height(u) => m.nominal.contacts[u].h = x,
                 Slot::Ka(u) => m.nominal.contacts[u].k_a = x,
                 Slot::Ca(u) => m.nominal.contacts[u].c_a = x,
+                Slot::Z0 => m.nominal.z0 = x,
+                Slot::V0 => m.nominal.v0 = x,
+                Slot::F0 => m.nominal.f0_scale = x,
+                Slot::Q => m.nominal.q_scale = x,
                 Slot::Effect(i, j) => m.effects[i].1[j] = x,
             }
         }
@@ -256,7 +306,22 @@ impl Problem {
                 });
             }
         }
+        out.extend(self.prior_rows(m, env));
         Some(out)
+    }
+
+    /// The calibration corrections' Gaussian prior as residual rows (nm): the noise σ times
+    /// the correction in tolerances, so that its square is the log-prior in the units of
+    /// the Gaussian likelihood's SSR. Empty for a quasi-static model.
+    pub fn prior_rows(&self, m: &Model, env: &Env) -> Vec<f64> {
+        if !self.inst.dynamic() {
+            return Vec::new();
+        }
+        let sigma = env.noise_m / LENGTH;
+        vec![
+            sigma * (m.nominal.f0_scale - 1.0) / F0_TOLERANCE,
+            sigma * m.nominal.q_scale.max(1e-300).ln() / Q_TOLERANCE,
+        ]
     }
 
     /// Levenberg–Marquardt over every parameter of `m` (see [`Problem::layout`]).
@@ -433,12 +498,14 @@ impl Problem {
                 mm.effects.push((cand.clone(), v));
                 let sim = self.fit_sim(&mm, env)?;
                 *evals += 1;
-                cols.push(
-                    sim.iter()
-                        .zip(&sim_base)
-                        .map(|(a, b)| (a - b) / probe)
-                        .collect(),
-                );
+                // Zero in the prior's rows (the effect does not touch the calibrations).
+                let mut col: Vec<f64> = sim
+                    .iter()
+                    .zip(&sim_base)
+                    .map(|(a, b)| (a - b) / probe)
+                    .collect();
+                col.resize(r_base.len(), 0.0);
+                cols.push(col);
             }
             let (beta, s) = linear_least_squares(&cols, r_base, &nonneg);
             let nb = jac.len();
@@ -700,11 +767,16 @@ impl Problem {
     /// Huber's loss at 3× the residual's sample-to-sample scatter, so that what no candidate
     /// can model does not drag the parameters of what they can.
     pub fn search(&self, opts: &SearchOptions, mut progress: impl FnMut(&str)) -> Search {
+        let inits = self.initial_nominals();
+        let env0 = super::environment(self, &Model::nominal(inits[0].clone()), None);
+        let mut evaluations = 0;
+        // The first start polished with the input held: the robustness check's fit, reused
+        // as the nominal fit's first.
+        let mut first: Option<(f64, Model)> = None;
         if self.huber_nm.is_none() {
-            let init = self.initial_nominals();
-            let env0 = super::environment(self, &Model::nominal(init[0].clone()), None);
-            let mut m = Model::nominal(init[0].clone());
-            let _ = self.polish(&mut m, &env0, 40);
+            let mut m = Model::nominal(inits[0].clone());
+            let (s, ev) = self.polish(&mut m, &env0, 40);
+            evaluations += ev;
             let r = self.residual(&m, &env0);
             if self.misfit_dominated(&r) {
                 let diffs: Vec<f64> = r.windows(2).map(|w| w[1] - w[0]).collect();
@@ -715,41 +787,48 @@ impl Problem {
                     ..self.clone()
                 };
                 progress("misfit dominates the residual: robust (Huber) fitting");
-                return robust.search(opts, progress);
+                let mut out = robust.search(opts, progress);
+                out.evaluations += evaluations;
+                return out;
             }
+            first = Some((s, m));
         }
         progress("nominal fit");
-        let inits = self.initial_nominals();
-        let env0 = super::environment(self, &Model::nominal(inits[0].clone()), None);
-        let mut evaluations = 0;
         // Each start's nominal optimum, the best first; the others stay as starts for the
         // first stage's candidates (an unmodelled attraction can hold the nominal model in a
         // contact height far from the one the right extension needs).
-        // The input between samples of a dynamic recording: held (a DAC's staircase) or
-        // linear (a continuous source, sampled); whichever fits the first start better.
-        let holds: &[f64] = if self.inst.dynamic() {
-            &[0.0, 1.0]
+        // The input between samples of a dynamic recording (a DAC's staircase, a sampled
+        // line, a smooth command): whichever fits the first start best, each convention
+        // polished from the best fit so far (they differ by a fraction of the excitation).
+        let inputs: &[Input] = if self.inst.dynamic() {
+            &Input::ALL
         } else {
-            &[0.0]
+            &[Input::Held]
         };
-        let mut hold = 0.0;
-        let mut best_hold = f64::INFINITY;
-        let mut held_fits: Vec<(f64, Model)> = Vec::new();
-        for &h in holds {
-            let mut m = Model::nominal(inits[0].clone());
-            m.nominal.hold = h;
-            let (s, ev) = self.polish(&mut m, &env0, 40);
-            evaluations += ev;
-            if s < best_hold {
-                best_hold = s;
-                hold = h;
+        let mut input_fits: Vec<(f64, Model)> = first.into_iter().collect();
+        for &inp in inputs {
+            if input_fits.iter().any(|(_, m)| m.nominal.input == inp) {
+                continue;
             }
-            held_fits.push((s, m));
+            let mut m = match input_fits.iter().min_by(|a, b| a.0.total_cmp(&b.0)) {
+                Some((_, best)) => best.clone(),
+                None => Model::nominal(inits[0].clone()),
+            };
+            m.nominal.input = inp;
+            let iterations = if input_fits.is_empty() { 40 } else { 15 };
+            let (s, ev) = self.polish(&mut m, &env0, iterations);
+            evaluations += ev;
+            input_fits.push((s, m));
         }
-        let mut starts: Vec<(f64, Model)> = Vec::new();
-        for (i, init) in inits.into_iter().enumerate() {
+        input_fits.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let input = input_fits[0].1.nominal.input;
+        let mut starts: Vec<(f64, Model)> = vec![input_fits[0].clone()];
+        for (i, init) in inits.into_iter().enumerate().skip(1) {
             let mut m = Model::nominal(init);
-            m.nominal.hold = hold;
+            let best = &input_fits[0].1.nominal;
+            m.nominal.input = input;
+            (m.nominal.z0, m.nominal.v0) = (best.z0, best.v0);
+            (m.nominal.f0_scale, m.nominal.q_scale) = (best.f0_scale, best.q_scale);
             // The other starts keep their contact heights while the rest is fitted: left
             // free, the nominal model would pull them back to its own optimum.
             let (_, ev) = self.polish_with(&mut m, &env0, 40, i > 0);
@@ -759,21 +838,21 @@ impl Problem {
                 .map_or(f64::INFINITY, |r| ssr(&r));
             starts.push((r, m));
         }
-        let nominal = starts[0].1.clone();
-        // The other input convention stays a start of the first stage too: a drag on the
+        // The runner-up input convention stays a start of the first stage too: a drag on the
         // base's velocity acts through U̇ as the convention does, and the nominal model's
         // choice can absorb one while the extension needs the other.
-        for (_, m) in held_fits {
-            if m.nominal.hold != hold {
-                let r = self
-                    .fit_residual(&m, &env0)
-                    .map_or(f64::INFINITY, |r| ssr(&r));
-                starts.push((r, m));
-            }
+        if let Some(second) = input_fits.get(1) {
+            starts.push(second.clone());
         }
         // The scales every effect is built with are frozen here, from the fitted nominal
-        // model, so that an effect means the same at every stage.
-        let env = super::environment(self, &nominal, None);
+        // model, so that an effect means the same at every stage; the nominal fit is
+        // polished once more with them (the calibrations' prior is scaled by the noise).
+        let env = super::environment(self, &starts[0].1, None);
+        if self.inst.dynamic() {
+            let (_, ev) = self.polish(&mut starts[0].1, &env, 15);
+            evaluations += ev;
+        }
+        let nominal = starts[0].1.clone();
         let r_nom = self.residual(&nominal, &env);
         let nominal_noise = self.noise_model(&r_nom);
         let mut model = nominal.clone();
@@ -808,7 +887,8 @@ impl Problem {
             }
             let level = opts.alpha / cands.len() as f64;
             levels.push(level);
-            let r_fit = self.on_fit(&r_model);
+            let mut r_fit = self.on_fit(&r_model);
+            r_fit.extend(self.prior_rows(&model, &env));
             // The bases a candidate is fitted from: the model, and at the first stage the
             // other nominal optima.
             let mut bases: Vec<(Model, Vec<f64>, Vec<Vec<f64>>)> = Vec::new();
@@ -825,28 +905,24 @@ impl Problem {
                     bases.push((alt.clone(), r_alt, j_alt));
                 }
             }
-            let mut results: Vec<Tested> = Vec::new();
-            for (ci, cand) in cands.iter().enumerate() {
-                progress(&format!(
-                    "stage {}: candidate {}/{} ({})",
-                    stage + 1,
-                    ci + 1,
-                    cands.len(),
-                    cand.kind
-                ));
+            // Each candidate's fit is independent of the others': they run on the machine's
+            // cores (scoped threads taking the next candidate in turn), the results kept in
+            // the candidates' order so the outcome does not depend on the threads.
+            let fit_one = |cand: &Candidate| -> (Option<Tested>, usize) {
+                let mut evals = 0;
                 let mut fitted: Option<(Model, f64, usize)> = None;
                 for (b, r_b, j_b) in &bases {
                     if let Some(f) = self.fit_candidate(b, &env, cand, r_b, j_b) {
-                        evaluations += f.2;
+                        evals += f.2;
                         if fitted.as_ref().is_none_or(|g| f.1 < g.1) {
                             fitted = Some(f);
                         }
                     }
                 }
                 let Some((m, ssr, ev)) = fitted else {
-                    continue;
+                    return (None, evals);
                 };
-                evaluations += 2;
+                evals += 2;
                 let r_ext = self.residual(&m, &env);
                 let mut without = m.clone();
                 without.effects.pop();
@@ -867,7 +943,7 @@ impl Problem {
                     Some(c) => c / 3.0,
                     None => self.free_noise(&m, &env, &r_ext),
                 };
-                results.push(Tested {
+                let t = Tested {
                     kind: cand.kind,
                     model: m,
                     ssr_fit: ssr,
@@ -879,7 +955,46 @@ impl Problem {
                     rank_gain: f64::NAN,
                     rms_where_before,
                     rms_where_after,
+                };
+                (Some(t), evals)
+            };
+            let threads = opts.threads.clamp(1, cands.len());
+            let outcomes: Vec<(Option<Tested>, usize)> = {
+                let next = std::sync::atomic::AtomicUsize::new(0);
+                let (tx, rx) = std::sync::mpsc::channel::<(usize, (Option<Tested>, usize))>();
+                let mut slots: Vec<Option<(Option<Tested>, usize)>> = vec![None; cands.len()];
+                std::thread::scope(|scope| {
+                    for _ in 0..threads {
+                        let tx = tx.clone();
+                        let (next, cands, fit_one) = (&next, &cands, &fit_one);
+                        scope.spawn(move || loop {
+                            let ci = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                            let Some(cand) = cands.get(ci) else {
+                                break;
+                            };
+                            if tx.send((ci, fit_one(cand))).is_err() {
+                                break;
+                            }
+                        });
+                    }
+                    drop(tx);
+                    for (done, (ci, out)) in rx.iter().enumerate() {
+                        progress(&format!(
+                            "stage {}: candidate {}/{} fitted ({})",
+                            stage + 1,
+                            done + 1,
+                            cands.len(),
+                            cands[ci].kind
+                        ));
+                        slots[ci] = Some(out);
+                    }
                 });
+                slots.into_iter().flatten().collect()
+            };
+            let mut results: Vec<Tested> = Vec::new();
+            for (t, ev) in outcomes {
+                evaluations += ev;
+                results.extend(t);
             }
             // Ranked on one scale: every candidate's held-out residual whitened by one noise
             // model, that of the best fit of the stage (each test keeps its own; their gains
