@@ -351,7 +351,7 @@ pub fn build_all() -> Result<Vec<(Board, PathBuf)>> {
         if b == Board::Stm32h743 {
             let reached = itcm_check(&elf)?;
             println!(
-                "stm32h743: the loop interrupt and the {} functions it can reach are all in ITCM",
+                "stm32h743: the loop and estimator interrupts and the {} functions they can reach are all in ITCM",
                 reached.len() - 1
             );
         }
@@ -2544,9 +2544,10 @@ pub fn core_digest() -> Result<()> {
 
 // ---------------------------------------------------------------- ITCM check
 
-/// STM32H743: everything the loop interrupt (`TIM2`) can reach must be in ITCM (zero wait
-/// states), which the linker script arranges (`firmware/boards/stm32h743/memory.x`). This
-/// follows every branch and call from `TIM2` through the disassembly and lists the functions
+/// STM32H743: everything the loop interrupt (`TIM2`) and the estimator interrupt (`TIM3`)
+/// can reach must be in ITCM (zero wait states), which the linker script arranges
+/// (`firmware/boards/stm32h743/memory.x`). This follows every branch and call from both
+/// through the disassembly and lists the functions
 /// reached, with those outside ITCM as the error.
 pub fn itcm_check(elf: &Path) -> Result<Vec<String>> {
     use object::{Object, ObjectSymbol, SymbolKind};
@@ -2566,10 +2567,16 @@ pub fn itcm_check(elf: &Path) -> Result<Vec<String>> {
         .collect();
     funcs.sort();
     let find = |a: u64| funcs.iter().position(|(s, e, _)| (*s..*e).contains(&a));
-    let root = funcs
-        .iter()
-        .position(|f| f.2 == "TIM2")
-        .ok_or("no TIM2 symbol in the STM32H743 image")?;
+    // Both priorities: the loop interrupt (TIM2) and the estimator interrupt (TIM3).
+    let mut roots = Vec::new();
+    for name in ["TIM2", "TIM3"] {
+        roots.push(
+            funcs
+                .iter()
+                .position(|f| f.2 == name)
+                .ok_or(format!("no {name} symbol in the STM32H743 image"))?,
+        );
+    }
     let mut edges: Vec<Vec<usize>> = vec![Vec::new(); funcs.len()];
     for line in disassemble(elf)?.lines() {
         let mut parts = line.trim_start().splitn(2, ':');
@@ -2600,7 +2607,7 @@ pub fn itcm_check(elf: &Path) -> Result<Vec<String>> {
         }
     }
     let mut seen = vec![false; funcs.len()];
-    let mut stack = vec![root];
+    let mut stack = roots;
     let mut reached = Vec::new();
     while let Some(f) = stack.pop() {
         if std::mem::replace(&mut seen[f], true) {
@@ -2616,7 +2623,7 @@ pub fn itcm_check(elf: &Path) -> Result<Vec<String>> {
         .collect();
     if !outside.is_empty() {
         return Err(format!(
-            "the loop interrupt reaches code outside ITCM: {}",
+            "the loop or the estimator interrupt reaches code outside ITCM: {}",
             outside.join(", ")
         ));
     }
