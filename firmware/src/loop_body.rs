@@ -176,16 +176,18 @@ impl CommandSlot {
     }
 }
 
-/// Everything the loop interrupt owns.
+/// Everything the loop interrupt owns. `repr(C)` with the core first: its hot fields stay
+/// within immediate-offset reach of the structure's base (see `visco_core::Controller`).
+#[repr(C)]
 pub struct LoopState<A, U, X, C, E> {
+    /// The identification core.
+    pub core: C,
     /// Deflection input.
     pub adc: A,
     /// Actuator output.
     pub u_out: U,
     /// Lateral outputs.
     pub xy_out: X,
-    /// The identification core.
-    pub core: C,
     /// The estimator task's queues.
     pub estimator: E,
     /// Blocks handed over whose results have not come back.

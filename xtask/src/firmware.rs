@@ -1029,8 +1029,17 @@ pub struct BenchResult {
     pub ticks: u32,
     /// Idle iterations in the window.
     pub idle_iterations: u32,
-    /// Instructions per loop interrupt (everything the interrupt executes).
+    /// Instructions per loop interrupt (everything the interrupt executes; the estimator
+    /// interrupt's share taken out, see `avg_insns`).
     pub insns_per_step: f64,
+    /// Instructions per sample, everything: the loop interrupt and the estimator interrupt
+    /// (which tail-chains after the loop interrupt that pends it, inside the window).
+    pub avg_insns: f64,
+    /// Instructions of one estimator block update (the task with its hand-over, timed in
+    /// thread mode over the window's input), when the window has blocks.
+    pub estimator_per_block: Option<f64>,
+    /// Samples per block in the window (window samples / blocks), when it has blocks.
+    pub block_samples: Option<f64>,
     /// Instructions of `step` alone per sample (same state, same input), when measured.
     pub step_insns: Option<f64>,
     /// Resolution of the figure: one tick's worth of instructions divided by the steps.
@@ -1114,6 +1123,9 @@ pub fn bench_idle(img: &Image, steps: u32, shift: u32) -> Result<BenchResult> {
         ticks: b.ticks,
         idle_iterations: b.idle_iterations,
         insns_per_step: per,
+        avg_insns: per,
+        estimator_per_block: None,
+        block_samples: None,
         step_insns: None,
         resolution: ipt / f64::from(b.steps),
         start: 0,
@@ -1257,6 +1269,17 @@ pub fn bench_window(
     .map_err(io)?;
     let b = take_bench(&mut link)?;
     let (per, step) = insns(&b, ipt)?;
+    // The estimator interrupt's share: what the task adds to the thread-mode `step` loop over
+    // the same input, per sample; the rest of the window's per-sample count is the loop's.
+    let est_share = f64::from(b.estimator_ticks) * ipt / f64::from(b.steps);
+    let (est_block, block_samples) = if b.estimator_blocks > 0 {
+        (
+            Some(f64::from(b.estimator_ticks) * ipt / f64::from(b.estimator_blocks)),
+            Some(f64::from(b.steps) / f64::from(b.estimator_blocks)),
+        )
+    } else {
+        (None, None)
+    };
     // An interrupt longer than the timer period would leave the idle loop no time between
     // interrupts; the table running dry would then be counted too.
     if per > 0.9 * bench_period_insns(img) {
@@ -1318,7 +1341,10 @@ pub fn bench_window(
         steps: b.steps,
         ticks: b.ticks,
         idle_iterations: b.idle_iterations,
-        insns_per_step: per,
+        insns_per_step: per - est_share,
+        avg_insns: per,
+        estimator_per_block: est_block,
+        block_samples,
         step_insns: step,
         resolution: ipt / f64::from(b.steps),
         start,
@@ -1362,9 +1388,16 @@ pub fn print_bench(results: &[BenchResult]) {
             (Some(s), Some(o)) => format!(" = step {s:.1} + interrupt {o:.1}"),
             _ => String::new(),
         };
+        let est = match (b.estimator_per_block, b.block_samples) {
+            (Some(e), Some(n)) => format!(
+                "; estimator {e:.0} per block of {n:.1} samples, average per sample {:.1}",
+                b.avg_insns
+            ),
+            _ => String::new(),
+        };
         println!(
-            "{:<13} {:8.2} instructions per loop interrupt{split} (±{:.3}; {} steps from sample \
-             {}: {:.0} % estimating, {:.0} % read-out, {} records; shift {})",
+            "{:<13} {:8.2} instructions per loop interrupt{split}{est} (±{:.3}; {} steps from \
+             sample {}: {:.0} % estimating, {:.0} % read-out, {} records; shift {})",
             b.name,
             b.insns_per_step,
             b.resolution,
@@ -1384,6 +1417,13 @@ pub fn per_mode(results: &[BenchResult], mode: Mode) -> Option<&BenchResult> {
         .iter()
         .filter(|b| b.mode == Some(mode))
         .max_by(|a, b| a.insns_per_step.total_cmp(&b.insns_per_step))
+}
+
+/// The fastest loop rate at which a 400 MHz core (one instruction per cycle) spends at most
+/// half its time in the loop and estimator interrupts (`avg` instructions per sample), with
+/// the loop interrupt (`worst`) inside its period too.
+pub fn max_rate_hz(avg: f64, worst: f64) -> f64 {
+    (400e6 * 0.5 / avg).min(400e6 / worst)
 }
 
 /// The goals of issue 4, instructions per loop interrupt.
@@ -1489,6 +1529,42 @@ impl Report {
                 .unwrap_or_else(|| "null".into())
         };
         let _ = writeln!(s, "  \"instructions_per_step\": {},", per(&ins));
+        // Issue 14: the estimator's interrupt, the average per sample with it, the rate.
+        let window = |m: Mode| per_mode(&self.bench, m);
+        let num =
+            |v: Option<f64>, digits: usize| v.map_or("null".into(), |v| format!("{v:.digits$}"));
+        let _ = writeln!(
+            s,
+            "  \"estimator_instructions_per_block\": {},",
+            per(&|m| num(window(m).and_then(|b| b.estimator_per_block), 0))
+        );
+        let _ = writeln!(
+            s,
+            "  \"block_samples\": {},",
+            per(&|m| num(window(m).and_then(|b| b.block_samples), 0))
+        );
+        let avg = |m: Mode| {
+            self.bench
+                .iter()
+                .filter(|b| b.mode == Some(m))
+                .map(|b| b.avg_insns)
+                .max_by(f64::total_cmp)
+        };
+        let _ = writeln!(
+            s,
+            "  \"instructions_per_sample_avg\": {},",
+            per(&|m| num(avg(m), 0))
+        );
+        let _ = writeln!(
+            s,
+            "  \"max_loop_rate_hz_at_50pct_400mhz\": {},",
+            per(&|m| num(
+                avg(m)
+                    .zip(window(m))
+                    .map(|(a, w)| max_rate_hz(a, w.insns_per_step)),
+                0
+            ))
+        );
         let rep = |m: Mode| self.replay.iter().find(|r| r.mode == m);
         let _ = writeln!(
             s,
@@ -1536,11 +1612,16 @@ impl Report {
             .map(|b| {
                 let opt = |v: Option<f64>| v.map_or("null".into(), |v| format!("{v:.2}"));
                 format!(
-                    "\"{}\": {{\"interrupt\": {:.3}, \"step\": {}, \"interrupt_besides_step\": {}, \
+                    "\"{}\": {{\"interrupt\": {:.3}, \"average_per_sample\": {:.3}, \
+                     \"estimator_per_block\": {}, \"block_samples\": {}, \"step\": {}, \
+                     \"interrupt_besides_step\": {}, \
                      \"steps\": {}, \"first_sample\": {}, \"estimating_share\": {:.3}, \
                      \"readout_share\": {:.3}, \"records\": {}}}",
                     b.name,
                     b.insns_per_step,
+                    b.avg_insns,
+                    opt(b.estimator_per_block),
+                    opt(b.block_samples),
                     opt(b.step_insns),
                     opt(b.overhead()),
                     b.steps,

@@ -30,7 +30,7 @@
 use crate::config::{Config, ConfigError, DiveRegressor, SveRegressor};
 use crate::contact::{ContactDetector, ContactParams, ContactState};
 use crate::depth::{DepthController, DepthParams};
-use crate::estimator::{BlockStats, Estimator, EstimatorParams};
+use crate::estimator::{BlockStats, Estimator};
 use crate::excitation::{Excitation, ExcitationParams, SineTable, Tone};
 use crate::geometry::mean_sag;
 use crate::guard::{FaultBits, Guard, GuardParams};
@@ -326,8 +326,6 @@ struct DiveParams<T> {
     readout_samples: u32,
     ramp_samples: u32,
     regressor: DiveRegressor,
-    est2: EstimatorParams<T, 2>,
-    est3: EstimatorParams<T, 3>,
     /// 1/T and α/T of the loop period: a block sample's weight T/m².
     acc: (T, T),
     exc: ExcitationParams<T>,
@@ -352,8 +350,6 @@ struct SveParams<T> {
     settle_samples: u32,
     depth_eff: T,
     depth: DepthParams<T>,
-    est: EstimatorParams<T, 3>,
-    est2: EstimatorParams<T, 2>,
     /// 1/T and α/T of the loop period.
     acc: (T, T),
     highpass: T,
@@ -483,10 +479,15 @@ struct SveState<T> {
 }
 
 /// The identification core's per-sample state machine.
+///
+/// `repr(C)` keeps the fields in this order: the per-sample state first, then the constants,
+/// then what the loop touches rarely (the configuration, the estimator task's copy, the
+/// block hand-over), so that the hot fields sit within the reach of the M7's immediate-offset
+/// loads (`vldr`: ±1 020 bytes) from the structure's base instead of each needing an address
+/// computed first.
 #[derive(Clone, Debug)]
+#[repr(C)]
 pub struct Controller<T> {
-    p: Params<T>,
-    cfg: Config,
     mode: Option<Mode>,
     phase: Phase,
     u: T,
@@ -495,23 +496,28 @@ pub struct Controller<T> {
     y: T,
     x_code: i32,
     y_code: i32,
-    /// The last y quantised by `set_x_same_y`: (input, code, value).
-    y_quantized: (T, i32, T),
-    guard: Guard<T>,
     /// The block clock: counts loop samples, 0 at the first sample of a block.
     tick: u32,
+    /// Status bits of the result adopted this sample.
+    adopted: u32,
+    guard: Guard<T>,
     reg: Regressor<T>,
     contact: ContactDetector<T>,
     exc: Excitation<T>,
-    /// The estimators (per sample with blocks of 1; else the host's in-line estimator task,
-    /// and on the firmware only a copy that gives the restarts' projected θ̂₀).
-    task: EstimatorTask<T>,
     /// θ̂ of the two- and three-parameter estimators as the loop uses them.
     theta2: [T; 2],
     theta3: [T; 3],
     /// The block being accumulated and which estimator it is for.
     stats2: BlockStats<T, 2>,
     stats3: BlockStats<T, 3>,
+    depth: DepthController<T>,
+    dive: DiveState<T>,
+    sve: SveState<T>,
+    p: Params<T>,
+    /// The last y quantised by `set_x_same_y`: (input, code, value).
+    y_quantized: (T, i32, T),
+    record: Option<Record<T>>,
+    samples: u64,
     target: Target,
     /// A restart (θ̂₀) and a watch restart to send with the next block.
     pending_restart: Option<[T; 3]>,
@@ -522,13 +528,10 @@ pub struct Controller<T> {
     outbox: Option<Block<T>>,
     /// The host's in-line result, adopted at the next block close.
     inflight: Option<BlockResult<T>>,
-    /// Status bits of the result adopted this sample.
-    adopted: u32,
-    depth: DepthController<T>,
-    dive: DiveState<T>,
-    sve: SveState<T>,
-    record: Option<Record<T>>,
-    samples: u64,
+    /// The estimators (per sample with blocks of 1; else the host's in-line estimator task,
+    /// and on the firmware only a copy that gives the restarts' projected θ̂₀).
+    task: EstimatorTask<T>,
+    cfg: Config,
 }
 
 fn samples(seconds: f64, fs: f64) -> u32 {
@@ -650,8 +653,6 @@ impl<T: SineTable> Controller<T> {
                 readout_samples: samples(d.readout_s, fs),
                 ramp_samples: samples(d.excitation.ramp_s, fs),
                 regressor: d.regressor,
-                est2: d.estimator.params(fs, u_span),
-                est3: d.estimator.params(fs, u_span),
                 acc: (t(1.0 / period_us), t(d.estimator.alpha / period_us)),
                 exc: exc(&d.excitation),
                 theta0: theta0_dive,
@@ -676,8 +677,6 @@ impl<T: SineTable> Controller<T> {
                     u_min: t(cfg.limits.u_min_m * nm + exc_margin_sve),
                     u_max: t(cfg.limits.u_max_m * nm - exc_margin_sve),
                 },
-                est: s.estimator.params(fs, u_span),
-                est2: s.estimator.params(fs, u_span),
                 acc: (t(1.0 / period_us), t(s.estimator.alpha / period_us)),
                 // The high-passes run at the loop rate (they feed every sample of a block).
                 highpass: HighPass::coefficient(s.highpass_hz, fs),
@@ -738,10 +737,10 @@ impl<T: SineTable> Controller<T> {
         };
         let task = EstimatorTask::new(
             TaskParams {
-                dive2: p.dive.est2,
-                dive3: p.dive.est3,
-                sve2: p.sve.est2,
-                sve3: p.sve.est,
+                dive2: d.estimator.params(fs, u_span),
+                dive3: d.estimator.params(fs, u_span),
+                sve2: s.estimator.params(fs, u_span),
+                sve3: s.estimator.params(fs, u_span),
                 guard_dive: p.guard_dive,
                 guard_sve: p.guard_sve,
             },
