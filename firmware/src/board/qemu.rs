@@ -826,13 +826,20 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32,
             let d = scale.to_input(c as i32);
             // Through an opaque reference, as the interrupt sees its core: no state or
             // parameter is kept in registers from one call to the next. `LoopCore::step`,
-            // the interrupt's entry (for Q32 the inherent `step` is the SI one). Only what
-            // the interrupt uses of the output is kept: the DAC codes and the status word
-            // (its SI values are telemetry, computed only in replay; for Q31.32 they are
+            // the interrupt's entry (for Q32 the inherent `step` is the SI one), with the
+            // loop's side of the block hand-over (the result check, the block taken). Only
+            // what the interrupt uses of the output is kept: the DAC codes and the status
+            // word (its SI values are telemetry, computed only in replay; for Q31.32 they are
             // three 128-bit products the interrupt never pays).
             let core = core::hint::black_box(&mut copy);
+            if LoopCore::block_due(core) {
+                core::hint::black_box(());
+            }
             let o = LoopCore::step(core, core::hint::black_box(d));
             core::hint::black_box((o.u_code, o.x_code, o.y_code, o.status));
+            if let Some(b) = LoopCore::take_block(core) {
+                core::hint::black_box(&b);
+            }
         }
         let t1 = systick_now();
         for &c in table {
