@@ -1,18 +1,23 @@
 //! Board-independent firmware: the loop interrupt's state, the main loop that talks to the
 //! host, and the panic handler.
 //!
-//! Ownership: the loop state (`LOOP`) belongs to the loop interrupt. The main loop touches
-//! it only through [`with_loop`], which masks the loop interrupt for the duration (a few
-//! hundred cycles, only on configuration commands, never per sample). Per-sample data moves
-//! through lock-free SPSC queues: telemetry loop → main, core commands main → loop, and on
-//! QEMU replay samples main → loop.
+//! Ownership: the loop state (`LOOP`) belongs to the loop interrupt, the estimator task
+//! (`ESTIMATOR`) to the lower-priority estimator interrupt. The main loop touches them only
+//! through [`with_loop`] / [`with_both`], which mask the interrupts for the duration (a few
+//! hundred cycles, only on configuration commands, never per sample). Data moves through
+//! lock-free `heapless::spsc` queues: telemetry loop → main, blocks loop → estimator, results
+//! estimator → loop, and on QEMU replay samples main → loop; core commands main → loop are a
+//! command byte.
 
 use crate::board;
 use core::cell::UnsafeCell;
 use core::sync::atomic::Ordering;
+use heapless::spsc::{Consumer, Queue};
 use visco_firmware::core_glue::{self, CoreCommand, LoopCore, StagedConfig};
-use visco_firmware::loop_body::{CommandSlot, Counters, Item, TELEMETRY_DEPTH};
-use visco_firmware::spsc::{Consumer, Spsc};
+use visco_firmware::core_glue::{Block, BlockResult};
+use visco_firmware::loop_body::{
+    CommandSlot, Counters, EstimatorState, Item, QueueLink, ESTIMATOR_DEPTH, TELEMETRY_DEPTH,
+};
 use visco_protocol::{
     ack, frame, param, Command, ConfigRejectedFrame, FrameDecoder, PerSample, SeqTracker,
     StatusFrame, StepBlockFrame, StepDigest, StepFrame, Telemetry, MAX_FEED, MAX_WIRE,
@@ -22,8 +27,9 @@ use visco_protocol::{
 /// The loop state, owned by the loop interrupt (see the module comment).
 pub struct IsrCell<T>(UnsafeCell<Option<T>>);
 
-// SAFETY: accessed only by the loop interrupt, or by thread mode while that interrupt is
-// masked (`with_loop`), so never from two contexts at once.
+// SAFETY: each cell is accessed only by its interrupt (the loop's, the estimator's), or by
+// thread mode while that interrupt is masked (`with_loop`, `with_both`), so never from two
+// contexts at once.
 unsafe impl<T: Send> Sync for IsrCell<T> {}
 
 impl<T> IsrCell<T> {
@@ -31,7 +37,7 @@ impl<T> IsrCell<T> {
         Self(UnsafeCell::new(None))
     }
     /// # Safety
-    /// Only from the loop interrupt, or with the loop interrupt masked.
+    /// Only from the cell's interrupt, or with that interrupt masked.
     // A `&mut` from `&self` is the point: exclusivity comes from the interrupt masking
     // contract above, which the type system cannot see.
     #[allow(clippy::mut_from_ref)]
@@ -41,7 +47,7 @@ impl<T> IsrCell<T> {
         unsafe { (*self.0.get()).as_mut() }
     }
     /// # Safety
-    /// Only with the loop interrupt masked.
+    /// Only with the cell's interrupt masked.
     unsafe fn set(&self, v: T) {
         // SAFETY: exclusive access per the caller's contract.
         unsafe { *self.0.get() = Some(v) };
@@ -49,7 +55,8 @@ impl<T> IsrCell<T> {
 }
 
 pub static LOOP: IsrCell<board::Loop> = IsrCell::new();
-static TELEMETRY: Spsc<Item, TELEMETRY_DEPTH> = Spsc::new();
+/// The estimator task, owned by the estimator interrupt.
+pub static ESTIMATOR: IsrCell<EstimatorState> = IsrCell::new();
 static COMMANDS: CommandSlot = CommandSlot::new();
 pub static COUNTERS: Counters = Counters::new();
 
@@ -65,6 +72,30 @@ pub fn loop_interrupt() {
     if let Some(l) = unsafe { LOOP.get() } {
         l.on_sample();
     }
+}
+
+/// The estimator interrupt body (lower priority than the loop's): the blocks the loop
+/// handed over, one block update each.
+#[inline(always)]
+pub fn estimator_interrupt() {
+    // SAFETY: called from the estimator interrupt only.
+    if let Some(e) = unsafe { ESTIMATOR.get() } {
+        e.run();
+    }
+}
+
+/// Runs `f` on the loop state and the estimator task with both interrupts masked.
+fn with_both<R>(f: impl FnOnce(&mut board::Loop, &mut EstimatorState) -> R) -> Option<R> {
+    board::mask_loop();
+    board::mask_estimator();
+    // SAFETY: both interrupts are masked, and thread mode cannot preempt them.
+    let r = match unsafe { (LOOP.get(), ESTIMATOR.get()) } {
+        (Some(l), Some(e)) => Some(f(l, e)),
+        _ => None,
+    };
+    board::unmask_estimator();
+    board::unmask_loop();
+    r
 }
 
 /// Runs `f` on the loop state with the loop interrupt masked.
@@ -127,8 +158,8 @@ impl<L: Link> Tx<L> {
     }
 
     /// Sends everything the loop queued.
-    fn drain(&mut self, rx: &mut Consumer<'static, Item, TELEMETRY_DEPTH>) {
-        while let Some(item) = rx.pop() {
+    fn drain(&mut self, rx: &mut Consumer<'static, Item>) {
+        while let Some(item) = rx.dequeue() {
             match item {
                 Item::Step(s) if self.blocks => self.add_to_block(&s),
                 Item::Step(s) => self.send(&Telemetry::Step(s)),
@@ -183,17 +214,44 @@ pub fn run() -> ! {
         core_glue::CORE_ID,
         PROTOCOL_VERSION
     );
-    let Some((tel_tx, mut tel_rx)) = TELEMETRY.split() else {
+    // heapless's queue of N slots holds N − 1 items.
+    let Some(tel) = cortex_m::singleton!(: Queue<Item, { TELEMETRY_DEPTH + 1 }> = Queue::new())
+    else {
         board::fatal(4)
     };
+    let (tel_tx, mut tel_rx) = tel.split();
     let mut scales = BoardScales { adc: None };
     let mut staged = StagedConfig::new();
     // The default configuration (`Config::paper` at 1 MHz), so that the loop can run at once.
-    let (core, adc) = match core_glue::build_core(&staged, scales.adc) {
-        Ok(b) => (b.core, b.adc),
+    let (core, task, adc) = match core_glue::build_core(&staged, scales.adc) {
+        Ok(b) => (b.core, b.task, b.adc),
         Err(_) => board::fatal(5),
     };
-    let state = board::make_loop(&mut b, adc, core, tel_tx, &COMMANDS, &COUNTERS);
+    // The estimator's queues: blocks loop → estimator, results back.
+    let (Some(blocks), Some(results)) = (
+        cortex_m::singleton!(: Queue<Block, { ESTIMATOR_DEPTH + 1 }> = Queue::new()),
+        cortex_m::singleton!(: Queue<BlockResult, { ESTIMATOR_DEPTH + 1 }> = Queue::new()),
+    ) else {
+        board::fatal(11)
+    };
+    let (block_tx, block_rx) = blocks.split();
+    let (result_tx, result_rx) = results.split();
+    let link = QueueLink {
+        blocks: block_tx,
+        results: result_rx,
+        pend: board::pend_estimator,
+    };
+    let state = board::make_loop(&mut b, adc, core, link, tel_tx, &COMMANDS, &COUNTERS);
+    board::mask_estimator();
+    // SAFETY: the estimator interrupt is masked.
+    unsafe {
+        ESTIMATOR.set(EstimatorState {
+            task,
+            blocks: block_rx,
+            results: result_tx,
+        })
+    };
+    board::unmask_estimator();
     board::mask_loop();
     // SAFETY: the loop interrupt is masked.
     unsafe { LOOP.set(state) };
@@ -374,9 +432,12 @@ fn apply_config(
     // Built here, in thread mode; the loop only receives the finished core.
     match core_glue::build_core(staged, scales.adc) {
         Ok(b) => {
-            let (core, adc) = (b.core, b.adc);
-            with_loop(move |l| {
-                l.core = core;
+            let (core, task, adc) = (b.core, b.task, b.adc);
+            with_both(move |l, e| {
+                // Blocks and results of the old core are dropped with it.
+                while e.blocks.dequeue().is_some() {}
+                e.task = task;
+                l.replace_core(core);
                 board::set_scales(l, adc);
             });
             Ok(())

@@ -34,10 +34,19 @@ pub type AdcScale = <Number as LoopReal>::AdcScale;
 /// Why a configuration was rejected: the core's own error, naming the field.
 pub type ConfigError = visco_core::ConfigError;
 
+/// A block of samples for the estimator task (loop → estimator interrupt).
+pub type Block = visco_core::schedule::Block<Number>;
+/// The estimator task's result (estimator interrupt → loop).
+pub type BlockResult = visco_core::schedule::BlockResult<Number>;
+/// The estimator task, run by the lower-priority estimator interrupt.
+pub type EstimatorTask = visco_core::schedule::EstimatorTask<Number>;
+
 /// The core and the board settings derived from one configuration.
 pub struct Built {
     /// The controller, idle.
     pub core: ActiveCore,
+    /// Its estimator task (the estimator interrupt's).
+    pub task: EstimatorTask,
     /// The ADC's code → metres scale (the board parameter, or the core's full scale).
     pub adc: Scale,
 }
@@ -58,7 +67,8 @@ pub fn build_core(
         value: m,
         reason: "must be finite and non-zero (and below 4 µm per code in fixed point)",
     })?;
-    Ok(Built { core, adc })
+    let task = core.estimator_task();
+    Ok(Built { core, task, adc })
 }
 
 /// A command for the core.
@@ -81,7 +91,14 @@ pub trait LoopCore {
     /// Applies a command (called in the loop interrupt, before the step).
     fn apply_command(&mut self, cmd: CoreCommand);
     /// One loop sample: the measured deflection as [`crate::scale::Scale::to_input`] gives it.
+    /// Blocks for the estimator task wait in [`Self::take_block`].
     fn step(&mut self, d: Number) -> StepOut;
+    /// The next step closes a block: deliver the estimator's result first.
+    fn block_due(&self) -> bool;
+    /// Adopts the estimator task's result.
+    fn deliver(&mut self, r: &BlockResult);
+    /// The block the last step closed.
+    fn take_block(&mut self) -> Option<Block>;
     /// U, X, Y of the step just taken, in metres (telemetry).
     fn outputs_m(&self, out: &StepOut) -> [f32; 3];
     /// The finished tap or pixel as a telemetry frame (status bit [`RECORD_READY`]).
@@ -107,7 +124,19 @@ impl LoopCore for ActiveCore {
     }
     #[inline(always)]
     fn step(&mut self, d: Number) -> StepOut {
-        Number::step(self, d)
+        Number::step_loop(self, d)
+    }
+    #[inline(always)]
+    fn block_due(&self) -> bool {
+        visco_core::Controller::block_due(self)
+    }
+    #[inline(always)]
+    fn deliver(&mut self, r: &BlockResult) {
+        visco_core::Controller::deliver(self, r)
+    }
+    #[inline(always)]
+    fn take_block(&mut self) -> Option<Block> {
+        visco_core::Controller::take_block(self)
     }
     #[inline(always)]
     fn outputs_m(&self, out: &StepOut) -> [f32; 3] {

@@ -37,8 +37,11 @@ pub trait LoopReal: SineTable {
     fn from_metres(d_m: f32) -> Self;
     /// A deflection back in metres (telemetry).
     fn to_metres(d: Self) -> f32;
-    /// One loop sample.
+    /// One loop sample (with the block estimator run in-line: the host's reference).
     fn step(c: &mut Controller<Self>, d: Self) -> StepOut<Self>;
+    /// One loop sample without the block estimator (the firmware's loop interrupt, which
+    /// hands blocks to its estimator interrupt: `Controller::step_loop`).
+    fn step_loop(c: &mut Controller<Self>, d: Self) -> StepOut<Self>;
     /// The U applied now, in metres.
     fn u_m(c: &Controller<Self>) -> f32;
     /// U, X, Y after [`Self::step`], in metres (telemetry; the DACs take the codes).
@@ -72,6 +75,10 @@ impl LoopReal for f32 {
     #[inline(always)]
     fn step(c: &mut Controller<f32>, d: f32) -> StepOut<f32> {
         c.step(d)
+    }
+    #[inline(always)]
+    fn step_loop(c: &mut Controller<f32>, d: f32) -> StepOut<f32> {
+        c.step_loop_m(d)
     }
     fn u_m(c: &Controller<f32>) -> f32 {
         c.u_m()
@@ -123,6 +130,10 @@ impl LoopReal for Q32 {
     #[inline(always)]
     fn step(c: &mut Controller<Q32>, d: Q32) -> StepOut<Q32> {
         c.step_internal(d)
+    }
+    #[inline(always)]
+    fn step_loop(c: &mut Controller<Q32>, d: Q32) -> StepOut<Q32> {
+        c.step_loop(d)
     }
     fn u_m(c: &Controller<Q32>) -> f32 {
         nm_to_m(c.u_internal())

@@ -1,6 +1,6 @@
 //! The board-independent part of the visco firmware: the loop body, the boundary to the
-//! core, converter drivers over embedded-hal 1.0, code ↔ metres conversion, and the
-//! interrupt-safe queues. It builds and tests on the host (`cargo test -p visco-firmware`);
+//! core, converter drivers over embedded-hal 1.0 and code ↔ metres conversion (the queues between
+//! contexts are `heapless::spsc`). It builds and tests on the host (`cargo test -p visco-firmware`);
 //! the binary (`src/main.rs`) adds the boards, the interrupt and the host link.
 #![no_std]
 #![warn(missing_docs)]
@@ -15,7 +15,6 @@ pub mod drivers;
 pub mod loop_body;
 pub mod scale;
 pub mod spi_device;
-pub mod spsc;
 
 #[cfg(test)]
 mod testspi;

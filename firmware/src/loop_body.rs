@@ -1,13 +1,17 @@
 //! What the loop interrupt does for one sample, independent of the board:
-//! command → ADC → `step` → DAC → lateral outputs → telemetry.
+//! command → estimator result (at a block close) → ADC → `step` → DAC → lateral outputs →
+//! block to the estimator → telemetry.
 //!
 //! It never blocks, never allocates and has no panic path: a missing ADC sample is counted
 //! and the step skipped; a full telemetry queue is counted, and the main loop turns that
 //! count into a gap in the frame sequence numbers, so the host sees the loss too.
 
-use crate::core_glue::{CoreCommand, LoopCore, LoopReal, Mode, Number, RECORD_READY};
-use crate::spsc::Producer;
+use crate::core_glue::{
+    Block, BlockResult, CoreCommand, EstimatorTask, LoopCore, LoopReal, Mode, Number, RECORD_READY,
+};
 use core::sync::atomic::{AtomicU32, AtomicU8, Ordering};
+use heapless::spsc::Consumer;
+use heapless::spsc::Producer;
 use visco_protocol::{RecordFrame, StepFrame};
 
 /// The deflection input (ADC driver and code → the core's input, [`crate::scale::Scale`]).
@@ -47,6 +51,11 @@ pub struct Counters {
     pub starved: AtomicU32,
     /// Telemetry items lost to a full queue.
     pub telemetry_dropped: AtomicU32,
+    /// Estimator results not back when due (the estimator interrupt overran its N samples;
+    /// the result is adopted at the next block close instead).
+    pub estimator_late: AtomicU32,
+    /// Blocks lost to a full estimator queue.
+    pub blocks_dropped: AtomicU32,
 }
 
 impl Counters {
@@ -56,6 +65,8 @@ impl Counters {
             samples: AtomicU32::new(0),
             starved: AtomicU32::new(0),
             telemetry_dropped: AtomicU32::new(0),
+            estimator_late: AtomicU32::new(0),
+            blocks_dropped: AtomicU32::new(0),
         }
     }
 }
@@ -66,7 +77,64 @@ fn bump(c: &AtomicU32) {
     c.store(c.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed);
 }
 
-/// Depth of the loop → main telemetry queue.
+/// Blocks (and results) the queues between the loop and the estimator interrupt hold: one is
+/// in flight by the schedule (`visco_core::schedule`); the rest is slack for an overrun.
+pub const ESTIMATOR_DEPTH: usize = 4;
+
+/// The loop's end of the estimator task: blocks out, results back.
+pub trait EstimatorLink {
+    /// Hands over a block (and wakes the task); false when the queue is full.
+    fn send(&mut self, b: Block) -> bool;
+    /// The next result, if the task has one.
+    fn receive(&mut self) -> Option<BlockResult>;
+}
+
+/// The firmware's link: two `heapless::spsc` queues and the estimator interrupt pended.
+pub struct QueueLink {
+    /// Loop → estimator.
+    pub blocks: Producer<'static, Block>,
+    /// Estimator → loop.
+    pub results: Consumer<'static, BlockResult>,
+    /// Pends the estimator interrupt (the board's).
+    pub pend: fn(),
+}
+
+impl EstimatorLink for QueueLink {
+    #[inline(always)]
+    fn send(&mut self, b: Block) -> bool {
+        let ok = self.blocks.enqueue(b).is_ok();
+        (self.pend)();
+        ok
+    }
+    #[inline(always)]
+    fn receive(&mut self) -> Option<BlockResult> {
+        self.results.dequeue()
+    }
+}
+
+/// The estimator interrupt's state: the task and its ends of the queues.
+pub struct EstimatorState {
+    /// The estimators.
+    pub task: EstimatorTask,
+    /// Loop → estimator.
+    pub blocks: Consumer<'static, Block>,
+    /// Estimator → loop.
+    pub results: Producer<'static, BlockResult>,
+}
+
+impl EstimatorState {
+    /// The estimator interrupt's body: every waiting block, in order.
+    #[inline(always)]
+    pub fn run(&mut self) {
+        while let Some(b) = self.blocks.dequeue() {
+            let r = self.task.run(&b);
+            // Cannot be full: at most as many results as blocks, and the queues are alike.
+            let _ = self.results.enqueue(r);
+        }
+    }
+}
+
+/// Items the loop → main telemetry queue holds (`heapless::spsc::Queue` of this + 1 slots).
 pub const TELEMETRY_DEPTH: usize = 64;
 /// The core command waiting for the loop interrupt: Start or Stop, the latest one wins.
 ///
@@ -108,18 +176,24 @@ impl CommandSlot {
     }
 }
 
-/// Everything the loop interrupt owns.
-pub struct LoopState<A, U, X, C> {
+/// Everything the loop interrupt owns. `repr(C)` with the core first: its hot fields stay
+/// within immediate-offset reach of the structure's base (see `visco_core::Controller`).
+#[repr(C)]
+pub struct LoopState<A, U, X, C, E> {
+    /// The identification core.
+    pub core: C,
     /// Deflection input.
     pub adc: A,
     /// Actuator output.
     pub u_out: U,
     /// Lateral outputs.
     pub xy_out: X,
-    /// The identification core.
-    pub core: C,
+    /// The estimator task's queues.
+    pub estimator: E,
+    /// Blocks handed over whose results have not come back.
+    in_flight: u32,
     /// Loop → main telemetry.
-    pub telemetry: Producer<'static, Item, TELEMETRY_DEPTH>,
+    pub telemetry: Producer<'static, Item>,
     /// Main → loop commands.
     pub commands: &'static CommandSlot,
     /// Shared counters.
@@ -132,7 +206,7 @@ pub struct LoopState<A, U, X, C> {
     last_xy: (i32, i32),
 }
 
-impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
+impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A, U, X, C, E> {
     /// Assembles the loop state.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
@@ -140,7 +214,8 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
         u_out: U,
         xy_out: X,
         core: C,
-        telemetry: Producer<'static, Item, TELEMETRY_DEPTH>,
+        estimator: E,
+        telemetry: Producer<'static, Item>,
         commands: &'static CommandSlot,
         counters: &'static Counters,
     ) -> Self {
@@ -149,6 +224,8 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
             u_out,
             xy_out,
             core,
+            estimator,
+            in_flight: 0,
             telemetry,
             commands,
             counters,
@@ -170,8 +247,27 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
             bump(&self.counters.starved);
             return;
         };
+        if core.block_due() && self.in_flight > 0 {
+            // The schedule: the last block's result is adopted now, before this step.
+            let mut got = false;
+            while let Some(r) = self.estimator.receive() {
+                core.deliver(&r);
+                self.in_flight -= 1;
+                got = true;
+            }
+            if !got {
+                bump(&self.counters.estimator_late);
+            }
+        }
         let out = core.step(d);
         let dac_word = self.u_out.write(out.u_code);
+        if let Some(b) = self.core.take_block() {
+            if self.estimator.send(b) {
+                self.in_flight += 1;
+            } else {
+                bump(&self.counters.blocks_dropped);
+            }
+        }
         // Lateral DACs are written only when the setpoint moves (once per pixel in SVE):
         // three SPI writes per sample would not fit 1 MHz.
         let xy = (out.x_code, out.y_code);
@@ -217,6 +313,14 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
             .wrapping_sub(self.index_base)
     }
 
+    /// A new core (thread mode, with both interrupts masked): nothing is in flight any more
+    /// (the caller empties the queues).
+    pub fn replace_core(&mut self, core: C) {
+        self.core = core;
+        self.in_flight = 0;
+        while self.estimator.receive().is_some() {}
+    }
+
     /// Restarts the sample index at 0 (a new source).
     pub fn reset_index(&mut self) {
         self.index_base = self.counters.samples.load(Ordering::Relaxed);
@@ -225,8 +329,8 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore> LoopState<A, U, X, C> {
 
 /// Queues a telemetry item, or counts it as dropped when the queue is full.
 #[inline(always)]
-fn emit(q: &mut Producer<'static, Item, TELEMETRY_DEPTH>, counters: &Counters, item: Item) {
-    if q.push(item).is_err() {
+fn emit(q: &mut Producer<'static, Item>, counters: &Counters, item: Item) {
+    if q.enqueue(item).is_err() {
         bump(&counters.telemetry_dropped);
     }
 }
@@ -235,7 +339,7 @@ fn emit(q: &mut Producer<'static, Item, TELEMETRY_DEPTH>, counters: &Counters, i
 mod tests {
     use super::*;
     use crate::core_glue::{build_core, StagedConfig};
-    use crate::spsc::Spsc;
+    use heapless::spsc::Queue;
     use std::vec::Vec;
 
     struct Fed(Vec<Number>);
@@ -265,12 +369,25 @@ mod tests {
         }
     }
 
+    /// The estimator task run at once (as the host's `Controller::step` does).
+    struct Inline(EstimatorTask, Option<BlockResult>);
+    impl EstimatorLink for Inline {
+        fn send(&mut self, b: Block) -> bool {
+            self.1 = Some(self.0.run(&b));
+            true
+        }
+        fn receive(&mut self) -> Option<BlockResult> {
+            self.1.take()
+        }
+    }
+
     #[test]
     fn steps_counts_and_reports_drops() {
-        static TEL: Spsc<Item, TELEMETRY_DEPTH> = Spsc::new();
         static CMD: CommandSlot = CommandSlot::new();
         static COUNTERS: Counters = Counters::new();
-        let (tp, mut tc) = TEL.split().unwrap();
+        let tel: &'static mut Queue<Item, { TELEMETRY_DEPTH + 1 }> =
+            std::boxed::Box::leak(std::boxed::Box::new(Queue::new()));
+        let (tp, mut tc) = tel.split();
         let built = build_core(&StagedConfig::new(), None).unwrap();
         // Free cantilever: D = 0; the core moves to the first tap, then approaches.
         let n = 3000;
@@ -279,6 +396,7 @@ mod tests {
             Words::default(),
             Xy::default(),
             built.core,
+            Inline(built.task, None),
             tp,
             &CMD,
             &COUNTERS,
@@ -300,7 +418,7 @@ mod tests {
             n as u32 - TELEMETRY_DEPTH as u32
         );
         let mut k = 0;
-        while let Some(item) = tc.pop() {
+        while let Some(item) = tc.dequeue() {
             match item {
                 Item::Step(s) => assert_eq!(s.index, k),
                 Item::Record(_) => panic!("no tap finishes in 3 ms"),

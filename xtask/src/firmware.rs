@@ -351,7 +351,7 @@ pub fn build_all() -> Result<Vec<(Board, PathBuf)>> {
         if b == Board::Stm32h743 {
             let reached = itcm_check(&elf)?;
             println!(
-                "stm32h743: the loop interrupt and the {} functions it can reach are all in ITCM",
+                "stm32h743: the loop and estimator interrupts and the {} functions they can reach are all in ITCM",
                 reached.len() - 1
             );
         }
@@ -1029,8 +1029,17 @@ pub struct BenchResult {
     pub ticks: u32,
     /// Idle iterations in the window.
     pub idle_iterations: u32,
-    /// Instructions per loop interrupt (everything the interrupt executes).
+    /// Instructions per loop interrupt (everything the interrupt executes; the estimator
+    /// interrupt's share taken out, see `avg_insns`).
     pub insns_per_step: f64,
+    /// Instructions per sample, everything: the loop interrupt and the estimator interrupt
+    /// (which tail-chains after the loop interrupt that pends it, inside the window).
+    pub avg_insns: f64,
+    /// Instructions of one estimator block update (the task with its hand-over, timed in
+    /// thread mode over the window's input), when the window has blocks.
+    pub estimator_per_block: Option<f64>,
+    /// Samples per block in the window (window samples / blocks), when it has blocks.
+    pub block_samples: Option<f64>,
     /// Instructions of `step` alone per sample (same state, same input), when measured.
     pub step_insns: Option<f64>,
     /// Resolution of the figure: one tick's worth of instructions divided by the steps.
@@ -1114,6 +1123,9 @@ pub fn bench_idle(img: &Image, steps: u32, shift: u32) -> Result<BenchResult> {
         ticks: b.ticks,
         idle_iterations: b.idle_iterations,
         insns_per_step: per,
+        avg_insns: per,
+        estimator_per_block: None,
+        block_samples: None,
         step_insns: None,
         resolution: ipt / f64::from(b.steps),
         start: 0,
@@ -1257,6 +1269,17 @@ pub fn bench_window(
     .map_err(io)?;
     let b = take_bench(&mut link)?;
     let (per, step) = insns(&b, ipt)?;
+    // The estimator interrupt's share: what the task adds to the thread-mode `step` loop over
+    // the same input, per sample; the rest of the window's per-sample count is the loop's.
+    let est_share = f64::from(b.estimator_ticks) * ipt / f64::from(b.steps);
+    let (est_block, block_samples) = if b.estimator_blocks > 0 {
+        (
+            Some(f64::from(b.estimator_ticks) * ipt / f64::from(b.estimator_blocks)),
+            Some(f64::from(b.steps) / f64::from(b.estimator_blocks)),
+        )
+    } else {
+        (None, None)
+    };
     // An interrupt longer than the timer period would leave the idle loop no time between
     // interrupts; the table running dry would then be counted too.
     if per > 0.9 * bench_period_insns(img) {
@@ -1318,7 +1341,10 @@ pub fn bench_window(
         steps: b.steps,
         ticks: b.ticks,
         idle_iterations: b.idle_iterations,
-        insns_per_step: per,
+        insns_per_step: per - est_share,
+        avg_insns: per,
+        estimator_per_block: est_block,
+        block_samples,
         step_insns: step,
         resolution: ipt / f64::from(b.steps),
         start,
@@ -1362,9 +1388,16 @@ pub fn print_bench(results: &[BenchResult]) {
             (Some(s), Some(o)) => format!(" = step {s:.1} + interrupt {o:.1}"),
             _ => String::new(),
         };
+        let est = match (b.estimator_per_block, b.block_samples) {
+            (Some(e), Some(n)) => format!(
+                "; estimator {e:.0} per block of {n:.1} samples, average per sample {:.1}",
+                b.avg_insns
+            ),
+            _ => String::new(),
+        };
         println!(
-            "{:<13} {:8.2} instructions per loop interrupt{split} (±{:.3}; {} steps from sample \
-             {}: {:.0} % estimating, {:.0} % read-out, {} records; shift {})",
+            "{:<13} {:8.2} instructions per loop interrupt{split}{est} (±{:.3}; {} steps from \
+             sample {}: {:.0} % estimating, {:.0} % read-out, {} records; shift {})",
             b.name,
             b.insns_per_step,
             b.resolution,
@@ -1386,6 +1419,13 @@ pub fn per_mode(results: &[BenchResult], mode: Mode) -> Option<&BenchResult> {
         .max_by(|a, b| a.insns_per_step.total_cmp(&b.insns_per_step))
 }
 
+/// The fastest loop rate at which a 400 MHz core (one instruction per cycle) spends at most
+/// half its time in the loop and estimator interrupts (`avg` instructions per sample), with
+/// the loop interrupt (`worst`) inside its period too.
+pub fn max_rate_hz(avg: f64, worst: f64) -> f64 {
+    (400e6 * 0.5 / avg).min(400e6 / worst)
+}
+
 /// The goals of issue 4, instructions per loop interrupt.
 pub const GOAL_DIVE: f64 = 150.0;
 /// See [`GOAL_DIVE`].
@@ -1393,10 +1433,18 @@ pub const GOAL_SVE: f64 = 200.0;
 /// What `firmware-test` allows (the measured figures when last changed, plus 1 %): more is a
 /// regression and fails the test. Lower them when the loop gets cheaper. Raised from 496/559
 /// when the fault handling went in (issue 7: input check with a tip-motion prediction, force
-/// limit, SVE surface check, divergence watch): DIVE 491 → 599, SVE 553 → 686.
-pub const CEILING_DIVE: f64 = 605.0;
+/// limit, SVE surface check, divergence watch): DIVE 491 → 599, SVE 553 → 686; lowered when
+/// the estimator left the loop interrupt for its own (issue 14): 598 → 520, 684 → 616.
+pub const CEILING_DIVE: f64 = 525.0;
 /// See [`CEILING_DIVE`].
-pub const CEILING_SVE: f64 = 693.0;
+pub const CEILING_SVE: f64 = 622.0;
+/// Issue 14: instructions per sample with the estimator interrupt's share (measured 542 / 634
+/// when set, plus 1 %), and that goal (a 1 MHz loop at half of a 400 MHz core).
+pub const CEILING_AVG_DIVE: f64 = 548.0;
+/// See [`CEILING_AVG_DIVE`].
+pub const CEILING_AVG_SVE: f64 = 641.0;
+/// See [`CEILING_AVG_DIVE`].
+pub const GOAL_AVG: f64 = 200.0;
 
 // ---------------------------------------------------------------- report
 
@@ -1489,6 +1537,42 @@ impl Report {
                 .unwrap_or_else(|| "null".into())
         };
         let _ = writeln!(s, "  \"instructions_per_step\": {},", per(&ins));
+        // Issue 14: the estimator's interrupt, the average per sample with it, the rate.
+        let window = |m: Mode| per_mode(&self.bench, m);
+        let num =
+            |v: Option<f64>, digits: usize| v.map_or("null".into(), |v| format!("{v:.digits$}"));
+        let _ = writeln!(
+            s,
+            "  \"estimator_instructions_per_block\": {},",
+            per(&|m| num(window(m).and_then(|b| b.estimator_per_block), 0))
+        );
+        let _ = writeln!(
+            s,
+            "  \"block_samples\": {},",
+            per(&|m| num(window(m).and_then(|b| b.block_samples), 0))
+        );
+        let avg = |m: Mode| {
+            self.bench
+                .iter()
+                .filter(|b| b.mode == Some(m))
+                .map(|b| b.avg_insns)
+                .max_by(f64::total_cmp)
+        };
+        let _ = writeln!(
+            s,
+            "  \"instructions_per_sample_avg\": {},",
+            per(&|m| num(avg(m), 0))
+        );
+        let _ = writeln!(
+            s,
+            "  \"max_loop_rate_hz_at_50pct_400mhz\": {},",
+            per(&|m| num(
+                avg(m)
+                    .zip(window(m))
+                    .map(|(a, w)| max_rate_hz(a, w.insns_per_step)),
+                0
+            ))
+        );
         let rep = |m: Mode| self.replay.iter().find(|r| r.mode == m);
         let _ = writeln!(
             s,
@@ -1536,11 +1620,16 @@ impl Report {
             .map(|b| {
                 let opt = |v: Option<f64>| v.map_or("null".into(), |v| format!("{v:.2}"));
                 format!(
-                    "\"{}\": {{\"interrupt\": {:.3}, \"step\": {}, \"interrupt_besides_step\": {}, \
+                    "\"{}\": {{\"interrupt\": {:.3}, \"average_per_sample\": {:.3}, \
+                     \"estimator_per_block\": {}, \"block_samples\": {}, \"step\": {}, \
+                     \"interrupt_besides_step\": {}, \
                      \"steps\": {}, \"first_sample\": {}, \"estimating_share\": {:.3}, \
                      \"readout_share\": {:.3}, \"records\": {}}}",
                     b.name,
                     b.insns_per_step,
+                    b.avg_insns,
+                    opt(b.estimator_per_block),
+                    opt(b.block_samples),
                     opt(b.step_insns),
                     opt(b.overhead()),
                     b.steps,
@@ -1666,14 +1755,15 @@ pub const TABLE: [(Machine, Number, Estimator); 8] = [
 
 /// What `firmware-test` allows the Q31.32 build on the Cortex-M3, instructions per loop
 /// interrupt in the most expensive window of each mode (the figures measured when set, plus
-/// about 1 %): least squares.
-pub const CEILING_Q32_M3_DIVE: f64 = 6_000.0;
+/// about 1 %): least squares. Since issue 14 the loop interrupt is the same for both
+/// estimators (it accumulates the block either way; the estimator interrupt differs).
+pub const CEILING_Q32_M3_DIVE: f64 = 4_125.0;
 /// See [`CEILING_Q32_M3_DIVE`].
-pub const CEILING_Q32_M3_SVE: f64 = 6_090.0;
+pub const CEILING_Q32_M3_SVE: f64 = 4_950.0;
 /// See [`CEILING_Q32_M3_DIVE`]; the gradient estimator.
-pub const CEILING_Q32_M3_GRADIENT_DIVE: f64 = 4_150.0;
+pub const CEILING_Q32_M3_GRADIENT_DIVE: f64 = 4_125.0;
 /// See [`CEILING_Q32_M3_DIVE`]; the gradient estimator.
-pub const CEILING_Q32_M3_GRADIENT_SVE: f64 = 5_000.0;
+pub const CEILING_Q32_M3_GRADIENT_SVE: f64 = 4_950.0;
 
 /// Issue 8's accuracy goal: within this % of each property's maximum of the f64 reference.
 pub const FIXED_ERROR_GOAL_PCT: f64 = 0.5;
@@ -2132,6 +2222,35 @@ pub fn firmware_tests() -> Result<()> {
             ));
         }
     }
+    // Issue 14: the average per sample, the estimator interrupt's share included.
+    for (mode, ceiling) in [(Mode::Dive, CEILING_AVG_DIVE), (Mode::Sve, CEILING_AVG_SVE)] {
+        let w = b
+            .iter()
+            .filter(|b| b.mode == Some(mode))
+            .max_by(|a, b| a.avg_insns.total_cmp(&b.avg_insns))
+            .ok_or("no bench result")?;
+        let (Some(e), Some(n)) = (w.estimator_per_block, w.block_samples) else {
+            return Err(format!("{mode:?}: {} measured no estimator block", w.name));
+        };
+        println!(
+            "{mode:?}: {:.1} instructions per sample with the estimator ({e:.0} per block of \
+             {n:.1} samples; {}); issue 14's goal {GOAL_AVG}: {}",
+            w.avg_insns,
+            w.name,
+            if w.avg_insns <= GOAL_AVG {
+                "met"
+            } else {
+                "not met"
+            }
+        );
+        if w.avg_insns > ceiling {
+            return Err(format!(
+                "{mode:?}: {:.1} instructions per sample in {}, more than the {ceiling} measured \
+                 when this check was set: a regression",
+                w.avg_insns, w.name
+            ));
+        }
+    }
     // Fixed point (issue 8): the Q31.32 build on the Cortex-M3.
     fixed_point_tests()?;
     println!("firmware tests: ok ({:.0} s)", t0.elapsed().as_secs_f64());
@@ -2547,9 +2666,10 @@ pub fn core_digest_lines() -> Result<Vec<String>> {
 
 // ---------------------------------------------------------------- ITCM check
 
-/// STM32H743: everything the loop interrupt (`TIM2`) can reach must be in ITCM (zero wait
-/// states), which the linker script arranges (`firmware/boards/stm32h743/memory.x`). This
-/// follows every branch and call from `TIM2` through the disassembly and lists the functions
+/// STM32H743: everything the loop interrupt (`TIM2`) and the estimator interrupt (`TIM3`)
+/// can reach must be in ITCM (zero wait states), which the linker script arranges
+/// (`firmware/boards/stm32h743/memory.x`). This follows every branch and call from both
+/// through the disassembly and lists the functions
 /// reached, with those outside ITCM as the error.
 pub fn itcm_check(elf: &Path) -> Result<Vec<String>> {
     use object::{Object, ObjectSymbol, SymbolKind};
@@ -2569,10 +2689,16 @@ pub fn itcm_check(elf: &Path) -> Result<Vec<String>> {
         .collect();
     funcs.sort();
     let find = |a: u64| funcs.iter().position(|(s, e, _)| (*s..*e).contains(&a));
-    let root = funcs
-        .iter()
-        .position(|f| f.2 == "TIM2")
-        .ok_or("no TIM2 symbol in the STM32H743 image")?;
+    // Both priorities: the loop interrupt (TIM2) and the estimator interrupt (TIM3).
+    let mut roots = Vec::new();
+    for name in ["TIM2", "TIM3"] {
+        roots.push(
+            funcs
+                .iter()
+                .position(|f| f.2 == name)
+                .ok_or(format!("no {name} symbol in the STM32H743 image"))?,
+        );
+    }
     let mut edges: Vec<Vec<usize>> = vec![Vec::new(); funcs.len()];
     for line in disassemble(elf)?.lines() {
         let mut parts = line.trim_start().splitn(2, ':');
@@ -2603,7 +2729,7 @@ pub fn itcm_check(elf: &Path) -> Result<Vec<String>> {
         }
     }
     let mut seen = vec![false; funcs.len()];
-    let mut stack = vec![root];
+    let mut stack = roots;
     let mut reached = Vec::new();
     while let Some(f) = stack.pop() {
         if std::mem::replace(&mut seen[f], true) {
@@ -2619,7 +2745,7 @@ pub fn itcm_check(elf: &Path) -> Result<Vec<String>> {
         .collect();
     if !outside.is_empty() {
         return Err(format!(
-            "the loop interrupt reaches code outside ITCM: {}",
+            "the loop or the estimator interrupt reaches code outside ITCM: {}",
             outside.join(", ")
         ));
     }

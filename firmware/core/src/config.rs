@@ -105,11 +105,11 @@ pub struct EstimatorConfig {
     pub k_max_n_per_m: f64,
     /// Upper bound of the aggregate damping ĉ (N·s/m); the lower bound is 0.
     pub c_max_ns_per_m: f64,
-    /// Update the estimator every `decimation` loop samples (1: every sample). The prefilters
-    /// run at the loop rate regardless; the estimator's update then spans `decimation` periods
-    /// (its weight and forgetting scale with it, so the memory 1/β is unchanged). At 1 MHz with
-    /// tones up to 20 kHz the filtered regressor has 50 samples per period, and updating on
-    /// every 4th still resolves it; the loop saves three quarters of the estimator's cost.
+    /// Samples per estimator block, N (1 to 64; the name is the parameter's historical one).
+    /// N = 1: the estimator updates in the loop, on every sample. N > 1: the loop accumulates
+    /// the information of N samples and the estimator applies it in one exact block update
+    /// per N samples, off the loop's fast path (see [`crate::schedule`]): no sample is
+    /// skipped; β, R₀ and P₀ keep their meaning, Γ acts per block (`N·T·γ/α ≤ 1`).
     pub decimation: u32,
 }
 
@@ -481,6 +481,20 @@ impl EstimatorConfig {
         }
     }
 
+    /// The same estimator on blocks of `n` samples: Γ capped so that `n·T·γ/α ≤ 1/2`, the
+    /// block gradient law's stability condition with the margin [`Self::derived`] keeps.
+    pub fn in_blocks(mut self, n: u32, sample_rate_hz: f64) -> Self {
+        let n = n.clamp(1, 64);
+        self.decimation = n;
+        let gmax = 0.5 * self.alpha / (1e6 / sample_rate_hz * n as f64);
+        for g in self.gamma.iter_mut() {
+            if *g > gmax {
+                *g = gmax;
+            }
+        }
+        self
+    }
+
     /// The estimator's constants in internal units for `N` ≤ 3 parameters [c, k, k·h] at loop
     /// rate `sample_rate_hz`; θ₃'s bound is `k_max` times `height_span_m`.
     pub fn params<T: crate::Real, const N: usize>(
@@ -710,10 +724,18 @@ impl Config {
         let sve_phi = [sv, sp, 1.0];
         let tap_s = 0.2;
         // DIVE: memory 10 ms — short against the ~150 ms dwell, long against the tones' periods.
+        // Estimator blocks of 32 µs (32 samples at 1 MHz): a 300th of the DIVE memory and a
+        // 60th of SVE's, so forgetting lumped per block weighs samples within 1.6 % (SVE) of
+        // each other; θ̂ reaches the depth controller 32–64 µs after its samples (the force it
+        // divides is per sample), against the integrator's 500 µs (kᵢ = 2000/s: 64 µs is 7° at
+        // its 320 Hz crossover) and θ̂'s own memory of milliseconds.
+        let block = ((32e-6 * sample_rate_hz + 0.5) as u32).clamp(1, 64);
         let dive_est =
-            EstimatorConfig::derived(dive_phi, 10e-3, 20e-6, sample_rate_hz, nominal_dive);
+            EstimatorConfig::derived(dive_phi, 10e-3, 20e-6, sample_rate_hz, nominal_dive)
+                .in_blocks(block, sample_rate_hz);
         // SVE: memory 2 ms, a tenth of the paper's pixel time (1 s line / 50 px = 20 ms).
-        let sve_est = EstimatorConfig::derived(sve_phi, 2e-3, 20e-6, sample_rate_hz, nominal_sve);
+        let sve_est = EstimatorConfig::derived(sve_phi, 2e-3, 20e-6, sample_rate_hz, nominal_sve)
+            .in_blocks(block, sample_rate_hz);
 
         // Contact detector: thermal noise √(k_B·T/K) = 0.15 nm sits at f₀; a 5 kHz low-pass
         // cuts it to a few 10 pm, so γ = 0.3 nm (0.05 nN) is many σ yet fires within ~15 nm of

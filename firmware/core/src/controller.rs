@@ -30,12 +30,13 @@
 use crate::config::{Config, ConfigError, DiveRegressor, SveRegressor};
 use crate::contact::{ContactDetector, ContactParams, ContactState};
 use crate::depth::{DepthController, DepthParams};
-use crate::estimator::{Estimator, EstimatorParams, UpdateInfo};
+use crate::estimator::{BlockStats, Estimator};
 use crate::excitation::{Excitation, ExcitationParams, SineTable, Tone};
 use crate::geometry::mean_sag;
 use crate::guard::{FaultBits, Guard, GuardParams};
 use crate::prefilter::HighPass;
 use crate::regressor::{Regressor, RegressorParams};
+use crate::schedule::{Block, BlockResult, EstimatorTask, Target, TaskParams};
 use crate::units;
 use core::num::{NonZeroU32, NonZeroU64};
 
@@ -45,7 +46,7 @@ pub mod status {
     pub const CONTACT: u32 = 1 << 0;
     /// The excitation envelope is above zero.
     pub const EXCITING: u32 = 1 << 1;
-    /// The estimator updated this sample.
+    /// The estimator took this sample (a per-sample update, or into the block).
     pub const ESTIMATING: u32 = 1 << 2;
     /// A record (tap or pixel) is waiting in [`super::Controller::take_record`].
     pub const RECORD_READY: u32 = 1 << 3;
@@ -325,8 +326,8 @@ struct DiveParams<T> {
     readout_samples: u32,
     ramp_samples: u32,
     regressor: DiveRegressor,
-    est2: EstimatorParams<T, 2>,
-    est3: EstimatorParams<T, 3>,
+    /// 1/T and α/T of the loop period: a block sample's weight T/m².
+    acc: (T, T),
     exc: ExcitationParams<T>,
     theta0: [T; 3],
     retract_speed: f64,
@@ -349,8 +350,8 @@ struct SveParams<T> {
     settle_samples: u32,
     depth_eff: T,
     depth: DepthParams<T>,
-    est: EstimatorParams<T, 3>,
-    est2: EstimatorParams<T, 2>,
+    /// 1/T and α/T of the loop period.
+    acc: (T, T),
     highpass: T,
     exc: ExcitationParams<T>,
     theta0: [T; 3],
@@ -382,7 +383,7 @@ struct Params<T> {
     force_slow_weight: T,
     /// SVE: a static force below this is no contact (nN).
     lost_force: T,
-    /// Estimator updates every this many samples, per mode.
+    /// Samples per estimator block, per mode (1: the update runs in the loop, per sample).
     dec_dive: u32,
     dec_sve: u32,
 }
@@ -478,10 +479,15 @@ struct SveState<T> {
 }
 
 /// The identification core's per-sample state machine.
+///
+/// `repr(C)` keeps the fields in this order: the per-sample state first, then the constants,
+/// then what the loop touches rarely (the configuration, the estimator task's copy, the
+/// block hand-over), so that the hot fields sit within the reach of the M7's immediate-offset
+/// loads (`vldr`: ±1 020 bytes) from the structure's base instead of each needing an address
+/// computed first.
 #[derive(Clone, Debug)]
+#[repr(C)]
 pub struct Controller<T> {
-    p: Params<T>,
-    cfg: Config,
     mode: Option<Mode>,
     phase: Phase,
     u: T,
@@ -490,21 +496,42 @@ pub struct Controller<T> {
     y: T,
     x_code: i32,
     y_code: i32,
-    /// The last y quantised by `set_x_same_y`: (input, code, value).
-    y_quantized: (T, i32, T),
-    guard: Guard<T>,
-    /// Counts loop samples between estimator updates (0: update now).
+    /// The block clock: counts loop samples, 0 at the first sample of a block.
     tick: u32,
+    /// Status bits of the result adopted this sample.
+    adopted: u32,
+    guard: Guard<T>,
     reg: Regressor<T>,
     contact: ContactDetector<T>,
     exc: Excitation<T>,
-    est2: Estimator<T, 2>,
-    est3: Estimator<T, 3>,
+    /// θ̂ of the two- and three-parameter estimators as the loop uses them.
+    theta2: [T; 2],
+    theta3: [T; 3],
+    /// The block being accumulated and which estimator it is for.
+    stats2: BlockStats<T, 2>,
+    stats3: BlockStats<T, 3>,
     depth: DepthController<T>,
     dive: DiveState<T>,
     sve: SveState<T>,
+    p: Params<T>,
+    /// The last y quantised by `set_x_same_y`: (input, code, value).
+    y_quantized: (T, i32, T),
     record: Option<Record<T>>,
     samples: u64,
+    target: Target,
+    /// A restart (θ̂₀) and a watch restart to send with the next block.
+    pending_restart: Option<[T; 3]>,
+    pending_watch: bool,
+    /// Bumped by every restart: results of older blocks are dropped.
+    epoch: u32,
+    /// A closed block for the estimator task ([`Self::take_block`]).
+    outbox: Option<Block<T>>,
+    /// The host's in-line result, adopted at the next block close.
+    inflight: Option<BlockResult<T>>,
+    /// The estimators (per sample with blocks of 1; else the host's in-line estimator task,
+    /// and on the firmware only a copy that gives the restarts' projected θ̂₀).
+    task: EstimatorTask<T>,
+    cfg: Config,
 }
 
 fn samples(seconds: f64, fs: f64) -> u32 {
@@ -626,8 +653,7 @@ impl<T: SineTable> Controller<T> {
                 readout_samples: samples(d.readout_s, fs),
                 ramp_samples: samples(d.excitation.ramp_s, fs),
                 regressor: d.regressor,
-                est2: d.estimator.params(fs, u_span),
-                est3: d.estimator.params(fs, u_span),
+                acc: (t(1.0 / period_us), t(d.estimator.alpha / period_us)),
                 exc: exc(&d.excitation),
                 theta0: theta0_dive,
                 retract_speed: cfg.approach.retract_speed_m_per_s / fs * nm,
@@ -651,13 +677,9 @@ impl<T: SineTable> Controller<T> {
                     u_min: t(cfg.limits.u_min_m * nm + exc_margin_sve),
                     u_max: t(cfg.limits.u_max_m * nm - exc_margin_sve),
                 },
-                est: s.estimator.params(fs, u_span),
-                est2: s.estimator.params(fs, u_span),
-                // The high-passes run with the estimator, at its update rate.
-                highpass: HighPass::coefficient(
-                    s.highpass_hz,
-                    fs / s.estimator.decimation.max(1) as f64,
-                ),
+                acc: (t(1.0 / period_us), t(s.estimator.alpha / period_us)),
+                // The high-passes run at the loop rate (they feed every sample of a block).
+                highpass: HighPass::coefficient(s.highpass_hz, fs),
                 exc: exc(&s.excitation),
                 // Centred at the slow tip position: θ₃ = k·(h_bed − Z_s), zero at first contact;
                 // the depth controller then takes it to k·(δ_ref − s̄).
@@ -713,9 +735,31 @@ impl<T: SineTable> Controller<T> {
             left: false,
             reapproach_from: u,
         };
+        let task = EstimatorTask::new(
+            TaskParams {
+                dive2: d.estimator.params(fs, u_span),
+                dive3: d.estimator.params(fs, u_span),
+                sve2: s.estimator.params(fs, u_span),
+                sve3: s.estimator.params(fs, u_span),
+                guard_dive: p.guard_dive,
+                guard_sve: p.guard_sve,
+            },
+            p.dive.theta0,
+        );
+        let th2 = task.estimator2().theta();
         Ok(Self {
-            est2: Estimator::new(&p.dive.est2, [p.dive.theta0[0], p.dive.theta0[1]]),
-            est3: Estimator::new(&p.dive.est3, p.dive.theta0),
+            task,
+            theta2: th2,
+            theta3: task.estimator3().theta(),
+            stats2: BlockStats::default(),
+            stats3: BlockStats::default(),
+            target: Target::Dive3,
+            pending_restart: None,
+            pending_watch: false,
+            epoch: 0,
+            outbox: None,
+            inflight: None,
+            adopted: 0,
             depth: DepthController::new(u),
             p,
             cfg: *cfg,
@@ -841,20 +885,20 @@ impl<T: SineTable> Controller<T> {
         let p = &self.p;
         match self.mode {
             Some(Mode::Dive) if p.dive.regressor == DiveRegressor::Paper => {
-                let th = self.est2.theta();
+                let th = self.theta2;
                 (th[0], th[1], self.dive.h)
             }
             Some(Mode::Dive) => {
-                let th = self.est3.theta();
+                let th = self.theta3;
                 (th[0], th[1], (self.dive.z0 + th[2] / th[1]))
             }
             Some(Mode::Sve) | None if p.sve.regressor == SveRegressor::Decoupled => {
-                let th = self.est2.theta();
+                let th = self.theta2;
                 let force = p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
                 (th[0], th[1], (self.reg.z().x + force / th[1]))
             }
             _ => {
-                let th = self.est3.theta();
+                let th = self.theta3;
                 (th[0], th[1], (self.sve.z0 + th[2] / th[1]))
             }
         }
@@ -862,12 +906,52 @@ impl<T: SineTable> Controller<T> {
 
     /// Read access to the three-parameter estimator (tests, telemetry).
     pub fn estimator3(&self) -> &Estimator<T, 3> {
-        &self.est3
+        self.task.estimator3()
     }
 
     /// Read access to the two-parameter estimator (tests, telemetry).
     pub fn estimator2(&self) -> &Estimator<T, 2> {
-        &self.est2
+        self.task.estimator2()
+    }
+
+    /// A copy of the estimator task as built (the firmware's lower-priority task runs it).
+    pub fn estimator_task(&self) -> EstimatorTask<T> {
+        self.task
+    }
+
+    /// True when the next step closes a block: adopt the result of the block before
+    /// ([`Self::deliver`]) first. Always false with blocks of one sample.
+    #[inline(always)]
+    pub fn block_due(&self) -> bool {
+        let dec = match self.mode {
+            Some(Mode::Sve) => self.p.dec_sve,
+            _ => self.p.dec_dive,
+        };
+        dec > 1 && self.tick + 1 >= dec
+    }
+
+    /// The block the last step closed, for the estimator task.
+    #[inline(always)]
+    pub fn take_block(&mut self) -> Option<Block<T>> {
+        self.outbox.take()
+    }
+
+    /// Adopt an estimator task's result (call when [`Self::block_due`], before the step); a
+    /// result from before the last restart is dropped.
+    #[inline(always)]
+    pub fn deliver(&mut self, r: &BlockResult<T>) {
+        if r.epoch != self.epoch {
+            return;
+        }
+        if r.target.two() {
+            self.theta2 = [r.theta[0], r.theta[1]];
+        } else {
+            self.theta3 = r.theta;
+        }
+        self.adopted = r.flags;
+        if r.flags & status::EST_DIVERGED != 0 && self.mode == Some(Mode::Dive) {
+            self.dive.flags |= status::EST_DIVERGED;
+        }
     }
 
     /// SVE: the static tip force low-passed below the tones, as the surface check sees it (N).
@@ -881,12 +965,38 @@ impl<T: SineTable> Controller<T> {
         self.step_internal(d_m * self.p.to_internal)
     }
 
+    /// [`Self::step_loop`] with the deflection in metres (the firmware's f32 loop).
+    #[inline(always)]
+    pub fn step_loop_m(&mut self, d_m: T) -> StepOut<T> {
+        self.step_loop(d_m * self.p.to_internal)
+    }
+
     /// [`Self::step`] with the deflection in the core's internal length unit (nm): the entry
     /// point of the fixed-point path (see [`crate::fixed`]), which cannot hold the SI factor
     /// 10⁹. U, X and Y in internal units are [`Self::u_internal`] and [`Self::xy_internal`]
     /// (or the DAC codes of [`StepOut`]).
+    ///
+    /// With blocks of N > 1 samples this runs the estimator task in-line on every block the
+    /// step closes, on the schedule of [`crate::schedule`]: the same results as the
+    /// firmware's two interrupts.
     #[inline(always)]
     pub fn step_internal(&mut self, d_nm: T) -> StepOut<T> {
+        if self.block_due() {
+            if let Some(r) = self.inflight.take() {
+                self.deliver(&r);
+            }
+        }
+        let out = self.step_loop(d_nm);
+        if let Some(b) = self.outbox.take() {
+            self.inflight = Some(self.task.run(&b));
+        }
+        out
+    }
+
+    /// The loop's part of [`Self::step_internal`]: everything but the block estimator, whose
+    /// blocks wait in [`Self::take_block`] and whose results come back by [`Self::deliver`].
+    #[inline(always)]
+    pub fn step_loop(&mut self, d_nm: T) -> StepOut<T> {
         self.samples += 1;
         let mut st = 0u32;
         // Input: out-of-range, non-finite and spiking readings are replaced by the last good
@@ -899,12 +1009,15 @@ impl<T: SineTable> Controller<T> {
         st |= input.flags;
         let d = input.d;
         let input_ok = input.ok;
-        // The estimator updates on tick 0 of every `dec` samples.
-        self.tick = if self.tick + 1 >= dec {
-            0
+        // The block clock: a block closes at the first sample of the next.
+        if self.tick + 1 >= dec {
+            self.tick = 0;
+            if dec > 1 {
+                self.close_block();
+            }
         } else {
-            self.tick + 1
-        };
+            self.tick += 1;
+        }
         let z = self.u - d;
         self.reg.update(&self.p.reg, self.u, z);
 
@@ -925,6 +1038,8 @@ impl<T: SineTable> Controller<T> {
         if self.record.is_some() {
             st |= status::RECORD_READY;
         }
+        st |= self.adopted;
+        self.adopted = 0;
         st |= (self.phase as u32) << status::PHASE_SHIFT;
         StepOut {
             u_m: u * self.p.to_m,
@@ -963,18 +1078,70 @@ impl<T: SineTable> Controller<T> {
         self.y = self.y_quantized.2;
     }
 
-    fn est_flags(info: UpdateInfo) -> u32 {
-        let mut f = status::ESTIMATING;
-        if info.at_bound {
-            f |= status::COV_AT_BOUND;
+    /// Hands the block accumulated so far to the estimator task (the outbox), with a pending
+    /// restart; nothing when it holds no sample.
+    #[inline(always)]
+    fn close_block(&mut self) {
+        if self.stats2.samples == 0 && self.stats3.samples == 0 {
+            return;
         }
-        if info.projected {
-            f |= status::PROJECTED;
+        self.outbox = Some(Block {
+            target: self.target,
+            restart: self.pending_restart.take(),
+            restart_watch: core::mem::take(&mut self.pending_watch),
+            stats2: self.stats2,
+            stats3: self.stats3,
+            epoch: self.epoch,
+        });
+        self.stats2.clear();
+        self.stats3.clear();
+    }
+
+    /// A new tap or scan: the estimator at θ̂₀ with P₀, the divergence watch restarted.
+    fn restart_estimator(&mut self, target: Target, theta0: [T; 3]) {
+        self.task.restart(target, theta0);
+        self.task.restart_watch();
+        self.theta2 = self.task.estimator2().theta();
+        self.theta3 = self.task.estimator3().theta();
+        self.target = target;
+        self.stats2.clear();
+        self.stats3.clear();
+        self.pending_restart = Some(theta0);
+        self.pending_watch = true;
+        self.epoch = self.epoch.wrapping_add(1);
+    }
+
+    /// The divergence watch restarted (the surface found again).
+    fn restart_watch(&mut self) {
+        self.task.restart_watch();
+        self.pending_watch = true;
+    }
+
+    /// One estimator sample of two parameters: into the block, or the update itself with
+    /// blocks of one. Returns the status bits.
+    #[inline(always)]
+    fn estimate2(&mut self, target: Target, block: bool, acc: (T, T), w: T, phi: &[T; 2]) -> u32 {
+        if block {
+            self.stats2.add(acc.0, acc.1, w, phi);
+            status::ESTIMATING | self.adopted
+        } else {
+            let f = self.task.sample2(target, w, phi);
+            self.theta2 = self.task.estimator2().theta();
+            status::ESTIMATING | f
         }
-        if info.reset {
-            f |= status::EST_RESET;
+    }
+
+    /// [`Self::estimate2`] for three parameters.
+    #[inline(always)]
+    fn estimate3(&mut self, target: Target, block: bool, acc: (T, T), w: T, phi: &[T; 3]) -> u32 {
+        if block {
+            self.stats3.add(acc.0, acc.1, w, phi);
+            status::ESTIMATING | self.adopted
+        } else {
+            let f = self.task.sample3(target, w, phi);
+            self.theta3 = self.task.estimator3().theta();
+            status::ESTIMATING | f
         }
-        f
     }
 
     /// The lowered base during an approach; `None` when the travel limit is reached.
@@ -1047,36 +1214,26 @@ impl<T: SineTable> Controller<T> {
                     self.dive.u_cmd = u;
                     return u + self.exc.next(&self.p.dive.exc);
                 }
-                if t >= self.dive.estimate_from && input_ok && self.tick == 0 {
+                if t >= self.dive.estimate_from && input_ok {
                     let h = self.dive.h;
                     let w = self.reg.w(&self.p.reg);
-                    let (info, th) = match self.p.dive.regressor {
+                    let block = self.p.dec_dive > 1;
+                    let acc = self.p.dive.acc;
+                    let (f, th) = match self.p.dive.regressor {
                         DiveRegressor::Paper => {
-                            let info =
-                                self.est2
-                                    .update(&self.p.dive.est2, w, &self.reg.phi_dive(h));
-                            let th = self.est2.theta();
-                            (info, [th[0], th[1], T::ZERO])
+                            let phi = self.reg.phi_dive(h);
+                            let f = self.estimate2(Target::Dive2, block, acc, w, &phi);
+                            let th = self.theta2;
+                            (f, [th[0], th[1], T::ZERO])
                         }
                         // Centred at the target tip position z₀ = h − indent (fixed for the tap).
                         DiveRegressor::Offset => {
-                            let info = self.est3.update(
-                                &self.p.dive.est3,
-                                w,
-                                &self.reg.phi_sve(self.dive.z0),
-                            );
-                            (info, self.est3.theta())
+                            let phi = self.reg.phi_sve(self.dive.z0);
+                            let f = self.estimate3(Target::Dive3, block, acc, w, &phi);
+                            (f, self.theta3)
                         }
                     };
-                    let mut f = Self::est_flags(info);
-                    let e = match self.p.dive.regressor {
-                        DiveRegressor::Paper => self.est2.last_error(),
-                        DiveRegressor::Offset => self.est3.last_error(),
-                    };
-                    if self.guard.diverging(&self.p.guard_dive, info, e, w) {
-                        self.est2.reset_covariance(&self.p.dive.est2);
-                        self.est3.reset_covariance(&self.p.dive.est3);
-                        f |= status::EST_DIVERGED;
+                    if f & status::EST_DIVERGED != 0 {
                         self.dive.flags |= status::EST_DIVERGED;
                     }
                     *st |= f;
@@ -1153,15 +1310,12 @@ impl<T: SineTable> Controller<T> {
         self.dive.estimate_from = estimate_from;
         self.dive.readout_from = readout_from.max(estimate_from);
         self.dive.acc.clear();
-        self.guard.restart_watch();
         self.dive.z0 = self.dive.h - p.indent;
-        match p.regressor {
-            DiveRegressor::Paper => {
-                let w = self.dive.theta_warm;
-                self.est2.restart(&p.est2, [w[0], w[1]]);
-            }
-            DiveRegressor::Offset => self.est3.restart(&p.est3, self.dive.theta_warm),
-        }
+        let target = match p.regressor {
+            DiveRegressor::Paper => Target::Dive2,
+            DiveRegressor::Offset => Target::Dive3,
+        };
+        self.restart_estimator(target, self.dive.theta_warm);
         self.exc.set_on(true);
         self.phase = Phase::Dwell;
     }
@@ -1251,12 +1405,11 @@ impl<T: SineTable> Controller<T> {
                     self.sve.z0 = h;
                     self.sve.lost = false;
                     self.sve.force_slow = T::ZERO;
-                    self.guard.restart_watch();
-                    self.est3.restart(&self.p.sve.est, self.p.sve.theta0);
-                    self.est2.restart(
-                        &self.p.sve.est2,
-                        [self.p.sve.theta0[0], self.p.sve.theta0[1]],
-                    );
+                    let target = match self.p.sve.regressor {
+                        SveRegressor::Decoupled => Target::Sve2,
+                        SveRegressor::Paper => Target::Sve3,
+                    };
+                    self.restart_estimator(target, self.p.sve.theta0);
                     let w = self.reg.w(&self.p.reg);
                     let phi = self.reg.phi_sve(h);
                     self.sve.hp = [
@@ -1295,8 +1448,8 @@ impl<T: SineTable> Controller<T> {
                     *st |= status::FORCE_LIMIT;
                     self.exc.silence();
                     let k = match self.p.sve.regressor {
-                        SveRegressor::Decoupled => self.est2.theta()[1],
-                        SveRegressor::Paper => self.est3.theta()[1],
+                        SveRegressor::Decoupled => self.theta2[1],
+                        SveRegressor::Paper => self.theta3[1],
                     };
                     // Up by the cantilever's bend and the indentation (springs in series), and
                     // the clearance.
@@ -1316,52 +1469,30 @@ impl<T: SineTable> Controller<T> {
                 let mut f = 0;
                 let w = self.reg.w(&self.p.reg);
                 let phi = self.reg.phi_sve(self.sve.z0);
-                let update = input_ok && self.tick == 0;
+                let block = self.p.dec_sve > 1;
+                let acc = self.p.sve.acc;
                 // θ̂₂ ≥ k_min > 0 by projection, so the divisions are safe.
                 let (th, h_hat, depth) = match self.p.sve.regressor {
                     SveRegressor::Decoupled => {
-                        if self.tick == 0 {
-                            // The high-passes run at the estimator's rate, on every update
-                            // sample, so their state stays continuous.
-                            let hp = &mut self.sve.hp;
-                            let wh = hp[0].update(self.p.sve.highpass, w);
-                            let phi_h = [
-                                hp[1].update(self.p.sve.highpass, phi[0]),
-                                hp[2].update(self.p.sve.highpass, phi[1]),
-                            ];
-                            if update {
-                                let info = self.est2.update(&self.p.sve.est2, wh, &phi_h);
-                                f = Self::est_flags(info);
-                                if self.guard.diverging(
-                                    &self.p.guard_sve,
-                                    info,
-                                    self.est2.last_error(),
-                                    wh,
-                                ) {
-                                    self.est2.reset_covariance(&self.p.sve.est2);
-                                    f |= status::EST_DIVERGED;
-                                }
-                            }
+                        // The high-passes run every sample, so their state stays continuous.
+                        let hp = &mut self.sve.hp;
+                        let wh = hp[0].update(self.p.sve.highpass, w);
+                        let phi_h = [
+                            hp[1].update(self.p.sve.highpass, phi[0]),
+                            hp[2].update(self.p.sve.highpass, phi[1]),
+                        ];
+                        if input_ok {
+                            f = self.estimate2(Target::Sve2, block, acc, wh, &phi_h);
                         }
-                        let th = self.est2.theta();
+                        let th = self.theta2;
                         let depth = force / th[1];
                         ([th[0], th[1], T::ZERO], self.reg.z().x + depth, depth)
                     }
                     SveRegressor::Paper => {
-                        if update {
-                            let info = self.est3.update(&self.p.sve.est, w, &phi);
-                            f = Self::est_flags(info);
-                            if self.guard.diverging(
-                                &self.p.guard_sve,
-                                info,
-                                self.est3.last_error(),
-                                w,
-                            ) {
-                                self.est3.reset_covariance(&self.p.sve.est);
-                                f |= status::EST_DIVERGED;
-                            }
+                        if input_ok {
+                            f = self.estimate3(Target::Sve3, block, acc, w, &phi);
                         }
-                        let th = self.est3.theta();
+                        let th = self.theta3;
                         let h = self.sve.z0 + th[2] / th[1];
                         (th, h, h - z)
                     }
@@ -1416,7 +1547,7 @@ impl<T: SineTable> Controller<T> {
             // reach the fast one.
             self.sve.lost = false;
             self.guard.surface_found();
-            self.guard.restart_watch();
+            self.restart_watch();
             self.depth = DepthController::new(self.sve.u_cmd);
             self.exc.set_on(true);
         } else {
@@ -1429,8 +1560,8 @@ impl<T: SineTable> Controller<T> {
                 }
             }
         }
-        let th = self.est2.theta();
-        let th3 = self.est3.theta();
+        let th = self.theta2;
+        let th3 = self.theta3;
         let (c, k) = match self.p.sve.regressor {
             SveRegressor::Decoupled => (th[0], th[1]),
             SveRegressor::Paper => (th3[0], th3[1]),

@@ -42,6 +42,19 @@
 //! other parameters stay consistent with the data; a plain clamp alone lets an early transient
 //! pin k̂ at its bound while the offset θ̂₃ is still far off, which was measured to stall the
 //! three-parameter fit for ~10 ms.
+//!
+//! ## Block schedule
+//! With `Config`'s `estimator.decimation` = N > 1 the loop does not update per sample: it
+//! accumulates the block's information, `A = Σ ω·φφᵀ`, `b = Σ ω·φ·w` (and `Σ ω·w²`, `Σ ω` for
+//! the divergence watch) with the law's weight `ω = T/m²` per sample ([`BlockStats::add`]), and
+//! [`Estimator::update_block`] applies the block in one step: forgetting `(1 + βNT)` once, then
+//! `P ← (Q⁻¹ + A)⁻¹` as N ≤ 3 rank-one Sherman–Morrison updates along the columns of A's
+//! `LDLᵀ` factors (the same stable step as per sample, P stays positive definite), and
+//! `θ̂ ← θ̂ + P·(b − A·θ̂)`. That is the exact least-squares solution for the block's samples
+//! with the prior (θ̂, Q): no sample is skipped; only the forgetting inside the block is
+//! lumped (a relative weight error below N·β·T, 10⁻² for N = 32 and a 3 ms memory at 1 MHz),
+//! and θ̂ is held over the block instead of moving per sample. The gradient law likewise:
+//! `θ̂ ← θ̂ + Γ·(b − A·θ̂)`, stable for `N·T·γ/α ≤ 1` (what `Config::validate` checks).
 
 use crate::real::Real;
 
@@ -88,6 +101,75 @@ pub struct UpdateInfo {
     pub projected: bool,
     /// The update was rejected (non-finite data or lost positive definiteness) and P reset.
     pub reset: bool,
+}
+
+/// The information of a block of samples for `w = θᵀφ`: `Σ ω·φφᵀ` (upper triangle), `Σ ω·φ·w`,
+/// `Σ ω·w²` and `Σ ω`, with the least-squares law's weight `ω = T/m²`, `m² = 1 + α·φᵀφ`.
+#[derive(Clone, Copy, Debug)]
+pub struct BlockStats<T, const N: usize> {
+    /// Σ ω·φφᵀ, upper triangle (`a[i][j]`, `i ≤ j`).
+    pub a: [[T; N]; N],
+    /// Σ ω·φ·w.
+    pub b: [T; N],
+    /// Σ ω·w².
+    pub ww: T,
+    /// Σ ω.
+    pub weight: T,
+    /// Samples in the block.
+    pub samples: u32,
+}
+
+impl<T: Real, const N: usize> Default for BlockStats<T, N> {
+    fn default() -> Self {
+        Self {
+            a: [[T::ZERO; N]; N],
+            b: [T::ZERO; N],
+            ww: T::ZERO,
+            weight: T::ZERO,
+            samples: 0,
+        }
+    }
+}
+
+impl<T: Real, const N: usize> BlockStats<T, N> {
+    /// Adds one sample. `inv_period` is 1/T and `alpha_inv_period` α/T of the loop period T,
+    /// so `ω = 1/(1/T + α/T·φᵀφ) = T/m²`.
+    #[inline(always)]
+    pub fn add(&mut self, inv_period: T, alpha_inv_period: T, w: T, phi: &[T; N]) {
+        let mut phiphi = T::ZERO;
+        for p in phi {
+            phiphi += *p * *p;
+        }
+        let omega = T::ONE / (inv_period + alpha_inv_period * phiphi);
+        let ow = omega * w;
+        for i in 0..N {
+            let oi = omega * phi[i];
+            for j in i..N {
+                self.a[i][j] += oi * phi[j];
+            }
+            self.b[i] += phi[i] * ow;
+        }
+        self.ww += ow * w;
+        self.weight += omega;
+        self.samples += 1;
+    }
+
+    /// Empty again.
+    #[inline(always)]
+    pub fn clear(&mut self) {
+        *self = Self::default();
+    }
+}
+
+/// What one block update did, beyond [`UpdateInfo`]: the divergence watch's inputs.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BlockInfo<T> {
+    /// The update's flags.
+    pub info: UpdateInfo,
+    /// Weighted mean square of the a-priori prediction error `w − θ̂ᵀφ` over the block.
+    pub e_ms: T,
+    /// Weighted mean square of w over the block.
+    pub w_ms: T,
 }
 
 /// A recursive estimator of `N` parameters.
@@ -180,6 +262,30 @@ impl<T: Real, const N: usize> Estimator<T, N> {
         t
     }
 
+    /// A parameter beyond its bound brought back along P's column (see "Projection"); true
+    /// when one was.
+    #[inline(always)]
+    fn project_along_p(&self, params: &EstimatorParams<T, N>, theta: &mut [T; N]) -> bool {
+        let mut projected = false;
+        for i in 0..N {
+            let excess = if theta[i] > params.theta_max[i] {
+                theta[i] - params.theta_max[i]
+            } else if theta[i] < params.theta_min[i] {
+                theta[i] - params.theta_min[i]
+            } else {
+                T::ZERO
+            };
+            if excess != T::ZERO {
+                let s = excess / self.p[i][i];
+                for j in 0..N {
+                    theta[j] -= self.pij(j, i) * s;
+                }
+                projected = true;
+            }
+        }
+        projected
+    }
+
     #[inline(always)]
     fn project(&self, params: &EstimatorParams<T, N>, mut theta: [T; N]) -> ([T; N], bool) {
         let mut hit = false;
@@ -190,6 +296,153 @@ impl<T: Real, const N: usize> Estimator<T, N> {
             theta[i] = v;
         }
         (theta, hit)
+    }
+
+    /// One block update with the information `s` of N samples (see "Block schedule").
+    pub fn update_block(
+        &mut self,
+        params: &EstimatorParams<T, N>,
+        s: &BlockStats<T, N>,
+    ) -> BlockInfo<T> {
+        let mut out = BlockInfo::default();
+        if s.samples == 0 || !(s.weight > T::ZERO) {
+            return out;
+        }
+        // r = b − A·θ̂ (A symmetric from its upper triangle).
+        let a = |i: usize, j: usize| if i <= j { s.a[i][j] } else { s.a[j][i] };
+        let mut r = s.b;
+        for i in 0..N {
+            for j in 0..N {
+                r[i] -= a(i, j) * self.theta[j];
+            }
+        }
+        // Σω·e² = Σω·w² − 2θ̂ᵀb + θ̂ᵀAθ̂ = Σω·w² − θ̂ᵀ(b + r).
+        let mut ee = s.ww;
+        for i in 0..N {
+            ee -= self.theta[i] * (s.b[i] + r[i]);
+        }
+        let inv_weight = T::ONE / s.weight;
+        // Rounding can leave a tiny negative sum of squares.
+        let ee0 = if ee > T::ZERO { ee } else { T::ZERO };
+        out.e_ms = ee0 * inv_weight;
+        out.w_ms = s.ww * inv_weight;
+        self.last_error = out.e_ms;
+        let inf = T::from_f64(f64::INFINITY);
+        if !(finite(ee) && s.ww < inf) {
+            // Non-finite data restart P rather than poison θ (as per sample).
+            if params.kind == EstimatorKind::LeastSquares {
+                self.reset_covariance(params);
+            }
+            out.info.reset = true;
+            return out;
+        }
+        let mut theta = self.theta;
+        match params.kind {
+            EstimatorKind::LeastSquares => {
+                let f = if self.trace() * params.forget <= params.r0 {
+                    params.forget
+                } else {
+                    out.info.at_bound = true;
+                    T::ONE
+                };
+                for i in 0..N {
+                    for j in i..N {
+                        self.p[i][j] *= f;
+                    }
+                }
+                // A = L·D·Lᵀ; a pivot that is not clearly positive (a direction the block
+                // holds no information in, up to rounding) is dropped with its column.
+                let mut l = [[T::ZERO; N]; N];
+                let mut d = [T::ZERO; N];
+                let tiny = T::from_f64(1e-6);
+                for j in 0..N {
+                    let mut dj = s.a[j][j];
+                    for k in 0..j {
+                        dj -= l[j][k] * l[j][k] * d[k];
+                    }
+                    if !(dj > tiny * s.a[j][j]) || !(dj > T::ZERO) {
+                        continue;
+                    }
+                    d[j] = dj;
+                    l[j][j] = T::ONE;
+                    let inv = T::ONE / dj;
+                    for i in j + 1..N {
+                        let mut v = s.a[j][i];
+                        for k in 0..j {
+                            v -= l[i][k] * l[j][k] * d[k];
+                        }
+                        l[i][j] = v * inv;
+                    }
+                }
+                // P ← (P⁻¹ + Σ d_j·l_j·l_jᵀ)⁻¹, one Sherman–Morrison step per column.
+                for j in 0..N {
+                    if d[j] == T::ZERO {
+                        continue;
+                    }
+                    let mut g = [T::ZERO; N];
+                    let mut lg = T::ZERO;
+                    for i in 0..N {
+                        let mut acc = T::ZERO;
+                        for k in j..N {
+                            acc += self.pij(i, k) * l[k][j];
+                        }
+                        g[i] = acc;
+                    }
+                    for k in j..N {
+                        lg += l[k][j] * g[k];
+                    }
+                    let den = T::ONE + d[j] * lg;
+                    if !(den >= T::ONE && den < inf) {
+                        self.reset_covariance(params);
+                        out.info.reset = true;
+                        return out;
+                    }
+                    let c = d[j] / den;
+                    let mut definite = true;
+                    for i in 0..N {
+                        let gi = g[i] * c;
+                        for k in i..N {
+                            self.p[i][k] -= gi * g[k];
+                        }
+                        definite &= self.p[i][i] > T::ZERO;
+                    }
+                    if !definite {
+                        self.reset_covariance(params);
+                        out.info.reset = true;
+                        return out;
+                    }
+                }
+                // θ̂ ← θ̂ + P·r with the updated P.
+                let mut inside = true;
+                for i in 0..N {
+                    let mut dt = T::ZERO;
+                    for k in 0..N {
+                        dt += self.pij(i, k) * r[k];
+                    }
+                    theta[i] += dt;
+                    inside &= theta[i] >= params.theta_min[i] && theta[i] <= params.theta_max[i];
+                }
+                if inside {
+                    self.theta = theta;
+                    return out;
+                }
+                out.info.projected = self.project_along_p(params, &mut theta);
+                let (theta, hit) = self.project(params, theta);
+                self.theta = theta;
+                out.info.projected |= hit;
+            }
+            EstimatorKind::Gradient => {
+                // Γ = gain/T_block: θ̂ ← θ̂ + Γ·(b − Aθ̂), the sum of the per-sample steps with
+                // θ̂ held over the block.
+                for i in 0..N {
+                    theta[i] += params.gain[i] * params.inv_period * r[i];
+                }
+                let (theta, hit) = self.project(params, theta);
+                self.theta = theta;
+                out.info.projected = hit;
+            }
+        }
+        out
     }
 
     /// One update with the measurement `w` and regressor `phi`.
@@ -264,22 +517,7 @@ impl<T: Real, const N: usize> Estimator<T, N> {
                 // in the P⁻¹ metric: the others move as the least-squares fit with that
                 // parameter fixed would move them, instead of keeping an update that was
                 // computed for a value the bound forbids. The box clamp then catches the rest.
-                for i in 0..N {
-                    let excess = if theta[i] > params.theta_max[i] {
-                        theta[i] - params.theta_max[i]
-                    } else if theta[i] < params.theta_min[i] {
-                        theta[i] - params.theta_min[i]
-                    } else {
-                        T::ZERO
-                    };
-                    if excess != T::ZERO {
-                        let s = excess / self.p[i][i];
-                        for j in 0..N {
-                            theta[j] -= self.pij(j, i) * s;
-                        }
-                        info.projected = true;
-                    }
-                }
+                info.projected = self.project_along_p(params, &mut theta);
                 let (theta, hit) = self.project(params, theta);
                 self.theta = theta;
                 info.projected |= hit;

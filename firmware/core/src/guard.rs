@@ -61,7 +61,7 @@ pub struct GuardParams<T> {
     pub diverge: u32,
     /// Residual-to-measurement ratio beyond which the model explains nothing.
     pub residual_ratio: T,
-    /// Weight of the running means of |e| and |w| per update.
+    /// Weight of the running means of |e| and |w| (per block: of e² and w²) per update.
     pub mean_weight: T,
 }
 
@@ -81,6 +81,12 @@ pub struct Guard<T> {
     known: u8,
     hold: u32,
     lost_count: u32,
+}
+
+/// State of the estimator's divergence watch (it runs where the estimator runs: in the loop
+/// per sample, or in the estimator task per block).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Watch<T> {
     bound_count: u32,
     projected_count: u32,
     residual_count: u32,
@@ -178,7 +184,9 @@ impl<T: Real> Guard<T> {
     pub fn surface_found(&mut self) {
         self.lost_count = 0;
     }
+}
 
+impl<T: Real> Watch<T> {
     /// Watch one estimator update; true when the reset policy triggers (the counters restart).
     #[inline(always)]
     pub fn diverging(&mut self, p: &GuardParams<T>, info: UpdateInfo, e: T, w: T) -> bool {
@@ -203,12 +211,37 @@ impl<T: Real> Guard<T> {
     }
 
     /// Restart the divergence watch (a new tap or scan).
-    pub fn restart_watch(&mut self) {
+    pub fn restart(&mut self) {
         self.bound_count = 0;
         self.projected_count = 0;
         self.residual_count = 0;
         self.e_mean = T::ZERO;
         self.w_mean = T::ZERO;
+    }
+
+    /// Watch one block update: as [`Self::diverging`] with the block's mean squares of the
+    /// prediction error and of w (running means of the squares, compared with the ratio
+    /// squared: the RMS residual against `residual_ratio` times the RMS of w).
+    #[inline(always)]
+    pub fn diverging_ms(&mut self, p: &GuardParams<T>, info: UpdateInfo, e_ms: T, w_ms: T) -> bool {
+        let count = |c: &mut u32, on: bool| {
+            *c = if on { c.saturating_add(1) } else { 0 };
+            *c >= p.diverge
+        };
+        self.e_mean += p.mean_weight * (e_ms - self.e_mean);
+        self.w_mean += p.mean_weight * (w_ms - self.w_mean);
+        let far = self.e_mean > p.residual_ratio * p.residual_ratio * self.w_mean;
+        let a = count(&mut self.bound_count, info.at_bound);
+        let b = count(&mut self.projected_count, info.projected);
+        let c = count(&mut self.residual_count, far);
+        if a || b || c {
+            self.bound_count = 0;
+            self.projected_count = 0;
+            self.residual_count = 0;
+            true
+        } else {
+            false
+        }
     }
 }
 
@@ -314,7 +347,7 @@ mod tests {
     #[test]
     fn divergence_resets_after_a_sustained_sign_only() {
         let p = params();
-        let mut g = Guard::<f64>::default();
+        let mut g = Watch::<f64>::default();
         let at_bound = UpdateInfo {
             at_bound: true,
             ..Default::default()
@@ -332,11 +365,29 @@ mod tests {
         }
         assert_eq!(n, p.diverge - 1);
         // A residual as large as the measurement for long.
-        g.restart_watch();
+        g.restart();
         let mut n = 0;
         while !g.diverging(&p, UpdateInfo::default(), 1.0, 1.0) {
             n += 1;
             assert!(n < 100);
         }
+    }
+
+    #[test]
+    fn block_watch_compares_mean_squares_with_the_ratio_squared() {
+        let p = params(); // ratio 0.3: far when the RMS residual exceeds 0.3 × RMS w
+        let mut g = Watch::<f64>::default();
+        // RMS ratio 0.29: never far.
+        for _ in 0..1000 {
+            assert!(!g.diverging_ms(&p, UpdateInfo::default(), 0.29 * 0.29, 1.0));
+        }
+        // RMS ratio 0.31: far once the running means have moved (weight 0.1), then `diverge`
+        // blocks in a row.
+        let mut n = 0;
+        while !g.diverging_ms(&p, UpdateInfo::default(), 0.31 * 0.31, 1.0) {
+            n += 1;
+            assert!(n < 200, "never reset");
+        }
+        assert!(n >= p.diverge as usize - 1);
     }
 }

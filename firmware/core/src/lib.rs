@@ -51,6 +51,7 @@ pub mod observer;
 pub mod prefilter;
 pub mod real;
 pub mod regressor;
+pub mod schedule;
 pub mod units;
 
 pub use config::{Cantilever, Config, ConfigError, DiveRegressor, FaultConfig, SveRegressor};

@@ -24,7 +24,8 @@
 //! With the configuration of a [`crate::Config`] ([`ObserverConfig::from_config`]), a zero
 //! offset, and the windows opened at the samples where the controller opened them, the
 //! observer's estimates are those of the controller to the last bit (the unit test below
-//! checks this for a DIVE tap and an SVE scan in f32). Off-line, the host uses f64 and its own
+//! checks this for a DIVE tap and an SVE scan in f32, with the loop's estimator on blocks of one
+//! sample: the observer is the per-sample law, not the loop's block schedule). Off-line, the host uses f64 and its own
 //! windows and thresholds, derived from the recording.
 //!
 //! No allocation, no I/O, no panics: like the rest of the core, it also runs on the target.
@@ -726,6 +727,8 @@ mod tests {
         cfg.dive.nx = 1;
         cfg.dive.ny = 1;
         cfg.dive.tap_s = 0.05;
+        // The observer is the per-sample law: the loop's blocks of one sample.
+        cfg.dive.estimator.decimation = 1;
         let rows = closed_loop(&cfg, Mode::Dive, 60_000);
         let n = replay(&cfg, Mode::Dive, &rows);
         assert!(n > 20_000, "only {n} updates compared");
@@ -737,6 +740,7 @@ mod tests {
         cfg.sve.lines = 1;
         cfg.sve.pixels = 4;
         cfg.sve.line_period_s = 0.06;
+        cfg.sve.estimator.decimation = 1;
         let rows = closed_loop(&cfg, Mode::Sve, 200_000);
         let n = replay(&cfg, Mode::Sve, &rows);
         assert!(n > 50_000, "only {n} updates compared");

@@ -461,6 +461,12 @@ pub struct BenchFrame {
     pub step_ticks: u32,
     /// The same loop without the `step` call (its own cost, to subtract).
     pub loop_ticks: u32,
+    /// With `time_step`: SysTick ticks the estimator task's block updates add to the `step`
+    /// loop (the same loop with every closed block run through a copy of the task, minus
+    /// `step_ticks`; 0 otherwise).
+    pub estimator_ticks: u32,
+    /// Blocks the estimator task ran in that loop.
+    pub estimator_blocks: u32,
 }
 
 /// The result of [`Command::Calibrate`].
@@ -862,7 +868,9 @@ impl Telemetry {
                 w.u8(b.idle_insns_per_iteration)?;
                 w.u8(b.fixed_insns)?;
                 w.u32(b.step_ticks)?;
-                w.u32(b.loop_ticks)
+                w.u32(b.loop_ticks)?;
+                w.u32(b.estimator_ticks)?;
+                w.u32(b.estimator_blocks)
             }
             Telemetry::Calibration(c) => {
                 w.u8(kind::CALIBRATION)?;
@@ -954,6 +962,8 @@ impl Telemetry {
                 fixed_insns: r.u8()?,
                 step_ticks: r.u32()?,
                 loop_ticks: r.u32()?,
+                estimator_ticks: r.u32()?,
+                estimator_blocks: r.u32()?,
             }),
             kind::CALIBRATION => Telemetry::Calibration(CalibrationFrame {
                 iterations: r.u32()?,

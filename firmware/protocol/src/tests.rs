@@ -150,6 +150,8 @@ fn all_telemetry() -> Vec<Telemetry> {
             fixed_insns: 3,
             step_ticks: 7,
             loop_ticks: 8,
+            estimator_ticks: 9,
+            estimator_blocks: 10,
         }),
         Telemetry::ConfigRejected(ConfigRejectedFrame::new(
             "sve.estimator.gamma",

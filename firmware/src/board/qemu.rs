@@ -21,13 +21,13 @@ use cortex_m::peripheral::{syst::SystClkSource, NVIC};
 use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::{ErrorType as PinErrorType, OutputPin};
 use embedded_hal::spi::{ErrorType as SpiErrorType, SpiBus};
+use heapless::spsc::{Consumer, Producer, Queue};
 use visco_firmware::core_glue::{ActiveCore, CoreCommand, LoopCore, LoopReal, Mode, Number};
 use visco_firmware::drivers::ad4000::{self, part, Ad4000, CFG_TURBO};
 use visco_firmware::drivers::ad5541::Ad5541;
-use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, TELEMETRY_DEPTH};
+use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, QueueLink};
 use visco_firmware::scale::Scale;
 use visco_firmware::spi_device::CsDevice;
-use visco_firmware::spsc::{Consumer, Producer, Spsc};
 use visco_protocol::{
     ack, board, BenchFrame, BenchMode, CalibrationFrame, FeedBlock, FeedSamples, Source, MAX_FEED,
 };
@@ -77,6 +77,17 @@ unsafe impl cortex_m::interrupt::InterruptNumber for LoopIrq {
     }
 }
 
+/// The estimator interrupt's IRQ number: 10, a timer of the board's FPGA that this image
+/// leaves off, pended by software only.
+#[derive(Clone, Copy)]
+struct EstimatorIrq;
+// SAFETY: 10 is below the 32 IRQs QEMU's model has; nothing else raises it here.
+unsafe impl cortex_m::interrupt::InterruptNumber for EstimatorIrq {
+    fn number(self) -> u16 {
+        10
+    }
+}
+
 // ---- Vector table (cortex-m-rt `device` feature): 32 external interrupts. ----
 
 #[repr(C)]
@@ -99,8 +110,33 @@ pub static __INTERRUPTS: [Vector; 32] = {
     v[1] = Vector { handler: UART0_TX };
     v[8] = Vector { handler: TIMER0 };
     v[9] = Vector { handler: TIMER1 };
+    v[10] = Vector { handler: ESTIMATOR };
     v
 };
+
+/// The estimator interrupt (below the loop's priority): the block updates.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn ESTIMATOR() {
+    app::estimator_interrupt();
+}
+
+/// Pends the estimator interrupt (from the loop interrupt, when it hands over a block).
+#[inline(always)]
+pub fn pend_estimator() {
+    NVIC::pend(EstimatorIrq);
+}
+
+pub fn mask_estimator() {
+    NVIC::mask(EstimatorIrq);
+    cortex_m::asm::dsb();
+    cortex_m::asm::isb();
+}
+
+pub fn unmask_estimator() {
+    // SAFETY: the estimator state is initialised before the first unmask (app::run), and
+    // the interrupt only runs it.
+    unsafe { NVIC::unmask(EstimatorIrq) };
+}
 
 /// UART0 receive interrupt: only wakes the main loop from `wfi` (it reads the byte).
 #[unsafe(no_mangle)]
@@ -232,7 +268,6 @@ pub enum FeedSample {
 }
 
 const FEED_DEPTH: usize = 256;
-static FEED: Spsc<FeedSample, FEED_DEPTH> = Spsc::new();
 
 /// Where the virtual ADC's conversions come from.
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -251,7 +286,7 @@ pub struct QemuAdc {
     scale: Scale,
     source: AdcSource,
     phase: u32,
-    feed: Consumer<'static, FeedSample, FEED_DEPTH>,
+    feed: Consumer<'static, FeedSample>,
     table: &'static mut [i16; TABLE_LEN],
     /// Codes loaded into the table.
     table_len: usize,
@@ -268,7 +303,7 @@ impl loop_body::Adc for QemuAdc {
                 self.phase = self.phase.wrapping_add(7);
                 (self.phase & 0x3FFF) as i32 - 8192
             }
-            AdcSource::Feed => match self.feed.pop()? {
+            AdcSource::Feed => match self.feed.dequeue()? {
                 FeedSample::Code(c) => c as i32,
                 FeedSample::Metres(m) => return Some(Number::from_metres(m)),
             },
@@ -317,7 +352,7 @@ impl loop_body::XyOutput for QemuXy {
     }
 }
 
-pub type Loop = LoopState<QemuAdc, QemuU, QemuXy, ActiveCore>;
+pub type Loop = LoopState<QemuAdc, QemuU, QemuXy, ActiveCore, QueueLink>;
 
 // ---- UART0 host link. ----
 
@@ -363,8 +398,8 @@ impl Link for Uart {
 
 pub struct Board {
     link: Option<Uart>,
-    feed_tx: Producer<'static, FeedSample, FEED_DEPTH>,
-    feed_rx: Option<Consumer<'static, FeedSample, FEED_DEPTH>>,
+    feed_tx: Producer<'static, FeedSample>,
+    feed_rx: Option<Consumer<'static, FeedSample>>,
     feeding: bool,
     loading_table: bool,
     next_feed_index: u32,
@@ -386,14 +421,18 @@ pub fn init() -> Board {
         write_volatile(reg(TIMER1_BASE, TIMER_VALUE), u32::MAX);
         write_volatile(reg(TIMER1_BASE, TIMER_CTRL), TIMER_CTRL_EN);
     }
-    let Some((feed_tx, feed_rx)) = FEED.split() else {
+    // heapless's queue of N slots holds N − 1 items.
+    let Some(feed) = cortex_m::singleton!(: Queue<FeedSample, { FEED_DEPTH + 1 }> = Queue::new())
+    else {
         fatal(7)
     };
+    let (feed_tx, feed_rx) = feed.split();
     let link = Uart::init();
     // The loop interrupt preempts everything; the UART interrupt only wakes the main loop.
     // SAFETY: priorities are set before either interrupt is unmasked.
     unsafe {
         cp.NVIC.set_priority(LoopIrq, 0x00);
+        cp.NVIC.set_priority(EstimatorIrq, 0x40);
         cp.NVIC.set_priority(UartIrq, 0x80);
         NVIC::unmask(UartIrq);
     }
@@ -418,7 +457,8 @@ pub fn make_loop(
     b: &mut Board,
     adc_scale: Scale,
     core: ActiveCore,
-    tel: Producer<'static, Item, TELEMETRY_DEPTH>,
+    link: QueueLink,
+    tel: Producer<'static, Item>,
     cmds: &'static CommandSlot,
     counters: &'static Counters,
 ) -> Loop {
@@ -450,10 +490,16 @@ pub fn make_loop(
             y: Ad5541::new(device(VirtualDacBus)),
         },
         core,
+        link,
         tel,
         cmds,
         counters,
     )
+}
+
+/// Free slots of the replay queue.
+fn feed_free(q: &Producer<'static, FeedSample>) -> usize {
+    q.capacity() - q.len()
 }
 
 pub fn take_link(b: &mut Board) -> Uart {
@@ -508,14 +554,14 @@ fn timer_start(period_ticks: u32) {
 /// Main loop housekeeping: in replay mode, one loop interrupt per fed sample, as long as the
 /// telemetry queue has room for its Step frame and a possible Record frame.
 pub fn poll(b: &mut Board, telemetry_free: usize) {
-    if b.feeding && telemetry_free >= 2 && b.feed_tx.free() < FEED_DEPTH {
+    if b.feeding && telemetry_free >= 2 && feed_free(&b.feed_tx) < FEED_DEPTH {
         NVIC::pend(LoopIrq);
     }
 }
 
 /// True while replay samples wait for the loop.
 pub fn samples_pending(b: &Board) -> bool {
-    b.feeding && b.feed_tx.free() < FEED_DEPTH
+    b.feeding && feed_free(&b.feed_tx) < FEED_DEPTH
 }
 
 /// Sleeps until an interrupt, unless work is already waiting (checked with interrupts off,
@@ -533,7 +579,7 @@ pub fn idle(b: &Board) {
 /// Host bytes are taken only while a whole replay block still fits the replay queue, so a
 /// decoded block never has to be refused; QEMU then holds the bytes (flow control).
 pub fn can_accept_command(b: &Board) -> bool {
-    b.feed_tx.free() >= MAX_FEED
+    feed_free(&b.feed_tx) >= MAX_FEED
 }
 
 pub fn set_source(b: &mut Board, src: Source) -> u8 {
@@ -565,7 +611,7 @@ pub fn set_source(b: &mut Board, src: Source) -> u8 {
             b.next_feed_index = 0;
             app::with_loop(|l| {
                 // Samples of an earlier replay still queued are discarded.
-                while l.adc.feed.pop().is_some() {}
+                while l.adc.feed.dequeue().is_some() {}
                 l.adc.source = AdcSource::Feed;
                 l.reset_index();
             });
@@ -589,14 +635,14 @@ pub fn feed(b: &mut Board, block: &FeedBlock) -> u8 {
     match &block.samples {
         FeedSamples::Codes(c) => {
             for &v in c.iter().take(n) {
-                if b.feed_tx.push(FeedSample::Code(v)).is_ok() {
+                if b.feed_tx.enqueue(FeedSample::Code(v)).is_ok() {
                     pushed += 1;
                 }
             }
         }
         FeedSamples::Metres(m) => {
             for &v in m.iter().take(n) {
-                if b.feed_tx.push(FeedSample::Metres(v)).is_ok() {
+                if b.feed_tx.enqueue(FeedSample::Metres(v)).is_ok() {
                     pushed += 1;
                 }
             }
@@ -665,7 +711,7 @@ pub fn bench(b: &mut Board, mode: BenchMode, steps: u32, period_ticks: u32) -> O
     timer_stop();
     b.feeding = false;
     b.loading_table = false;
-    let (mut step_ticks, mut loop_ticks) = (0, 0);
+    let (mut step_ticks, mut loop_ticks, mut est_ticks, mut est_blocks) = (0, 0, 0, 0);
     let configured = app::with_loop(|l| {
         l.per_sample = false;
         let c = &mut l.core;
@@ -686,7 +732,8 @@ pub fn bench(b: &mut Board, mode: BenchMode, steps: u32, period_ticks: u32) -> O
                 l.adc.table_pos = 0;
                 if time_step {
                     let table = l.adc.table.get(..steps as usize).unwrap_or(&[]);
-                    (step_ticks, loop_ticks) = time_step_alone(c, table, l.adc.scale);
+                    (step_ticks, loop_ticks, est_ticks, est_blocks) =
+                        time_step_alone(c, table, l.adc.scale);
                 }
             }
         }
@@ -752,6 +799,8 @@ pub fn bench(b: &mut Board, mode: BenchMode, steps: u32, period_ticks: u32) -> O
         fixed_insns: 2,
         step_ticks,
         loop_ticks,
+        estimator_ticks: est_ticks,
+        estimator_blocks: est_blocks,
     })
 }
 
@@ -761,22 +810,36 @@ fn systick_now() -> u32 {
 }
 
 /// SysTick ticks of `step` over `table` on a copy of `core` (the interrupt's ADC conversion
-/// in front of each call), and of the same loop without the call; interrupts masked.
-fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32) {
+/// in front of each call), of the same loop without the call, and what running every closed
+/// block through a copy of the estimator task adds to the first loop (with the number of
+/// blocks); interrupts masked.
+fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32, u32, u32) {
     let mut copy = core.clone();
+    let mut copy2 = core.clone();
     cortex_m::interrupt::free(|_| {
+        // SAFETY: every interrupt is masked, the estimator's too.
+        let Some(mut task) = (unsafe { app::ESTIMATOR.get() }).map(|e| e.task) else {
+            return (0, 0, 0, 0);
+        };
         let t0 = systick_now();
         for &c in table {
             let d = scale.to_input(c as i32);
             // Through an opaque reference, as the interrupt sees its core: no state or
             // parameter is kept in registers from one call to the next. `LoopCore::step`,
-            // the interrupt's entry (for Q32 the inherent `step` is the SI one). Only what
-            // the interrupt uses of the output is kept: the DAC codes and the status word
-            // (its SI values are telemetry, computed only in replay; for Q31.32 they are
+            // the interrupt's entry (for Q32 the inherent `step` is the SI one), with the
+            // loop's side of the block hand-over (the result check, the block taken). Only
+            // what the interrupt uses of the output is kept: the DAC codes and the status
+            // word (its SI values are telemetry, computed only in replay; for Q31.32 they are
             // three 128-bit products the interrupt never pays).
             let core = core::hint::black_box(&mut copy);
+            if LoopCore::block_due(core) {
+                core::hint::black_box(());
+            }
             let o = LoopCore::step(core, core::hint::black_box(d));
             core::hint::black_box((o.u_code, o.x_code, o.y_code, o.status));
+            if let Some(b) = LoopCore::take_block(core) {
+                core::hint::black_box(&b);
+            }
         }
         let t1 = systick_now();
         for &c in table {
@@ -784,9 +847,34 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32)
             core::hint::black_box(core::hint::black_box(d));
         }
         let t2 = systick_now();
+        // The loop of `step` again, on another copy, with the task's side: the result
+        // adopted at each block close and every closed block run.
+        let mut blocks = 0u32;
+        let mut result = None;
+        let t3 = systick_now();
+        for &c in table {
+            let d = scale.to_input(c as i32);
+            let core = core::hint::black_box(&mut copy2);
+            if LoopCore::block_due(core) {
+                if let Some(r) = result.take() {
+                    LoopCore::deliver(core, &r);
+                }
+            }
+            let o = LoopCore::step(core, core::hint::black_box(d));
+            core::hint::black_box((o.u_code, o.x_code, o.y_code, o.status));
+            if let Some(b) = LoopCore::take_block(core) {
+                result = Some(core::hint::black_box(&mut task).run(&b));
+                blocks += 1;
+            }
+        }
+        let t4 = systick_now();
+        let step = t0.wrapping_sub(t1) & 0x00FF_FFFF;
+        let with_task = t3.wrapping_sub(t4) & 0x00FF_FFFF;
         (
-            t0.wrapping_sub(t1) & 0x00FF_FFFF,
+            step,
             t1.wrapping_sub(t2) & 0x00FF_FFFF,
+            with_task.saturating_sub(step),
+            blocks,
         )
     })
 }

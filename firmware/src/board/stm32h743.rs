@@ -20,14 +20,14 @@ use cortex_m::peripheral::NVIC;
 use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::{ErrorType as PinErrorType, OutputPin};
 use embedded_hal::spi::{ErrorType as SpiErrorType, SpiBus};
+use heapless::spsc::Producer;
 use stm32h7::stm32h743 as pac;
 use visco_firmware::core_glue::{ActiveCore, Number};
 use visco_firmware::drivers::ad4000::{part, Ad4000, CFG_TURBO};
 use visco_firmware::drivers::ad5541::Ad5541;
-use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, TELEMETRY_DEPTH};
+use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, QueueLink};
 use visco_firmware::scale::Scale;
 use visco_firmware::spi_device::CsDevice;
-use visco_firmware::spsc::Producer;
 use visco_protocol::{ack, board, BenchFrame, BenchMode, CalibrationFrame, FeedBlock, Source};
 
 #[cfg(not(feature = "panic-never"))]
@@ -328,7 +328,7 @@ impl loop_body::XyOutput for H7Xy {
     }
 }
 
-pub type Loop = LoopState<H7Adc, H7U, H7Xy, ActiveCore>;
+pub type Loop = LoopState<H7Adc, H7U, H7Xy, ActiveCore, QueueLink>;
 
 // ---------------------------------------------------------------- loop interrupt (TIM2)
 
@@ -341,6 +341,31 @@ pub unsafe extern "C" fn TIM2() {
     // SAFETY: TIM2 status register; writing 0 to UIF clears it (rc_w0).
     unsafe { write_volatile((TIM2_BASE + 0x10) as *mut u32, 0) };
     app::loop_interrupt();
+}
+
+/// The estimator interrupt, in ITCM, below the loop's priority: TIM3's vector (the timer
+/// stays off; the loop pends it by software when it hands over a block).
+#[unsafe(no_mangle)]
+#[unsafe(link_section = ".itcm.TIM3")]
+pub unsafe extern "C" fn TIM3() {
+    app::estimator_interrupt();
+}
+
+/// Pends the estimator interrupt.
+#[inline(always)]
+pub fn pend_estimator() {
+    NVIC::pend(pac::Interrupt::TIM3);
+}
+
+pub fn mask_estimator() {
+    NVIC::mask(pac::Interrupt::TIM3);
+    cortex_m::asm::dsb();
+    cortex_m::asm::isb();
+}
+
+pub fn unmask_estimator() {
+    // SAFETY: the estimator state is initialised before the first unmask (app::run).
+    unsafe { NVIC::unmask(pac::Interrupt::TIM3) };
 }
 
 pub fn mask_loop() {
@@ -472,7 +497,10 @@ pub fn init() -> Board {
     cp.SYST.clear_current();
     cp.SYST.enable_counter();
     // SAFETY: priority set before the interrupt is unmasked.
-    unsafe { cp.NVIC.set_priority(pac::Interrupt::TIM2, 0) };
+    unsafe {
+        cp.NVIC.set_priority(pac::Interrupt::TIM2, 0);
+        cp.NVIC.set_priority(pac::Interrupt::TIM3, 0x40);
+    }
     Board {
         link: Some(Uart::init()),
     }
@@ -482,7 +510,8 @@ pub fn make_loop(
     _b: &mut Board,
     adc_scale: Scale,
     core: ActiveCore,
-    tel: Producer<'static, Item, TELEMETRY_DEPTH>,
+    link: QueueLink,
+    tel: Producer<'static, Item>,
     cmds: &'static CommandSlot,
     counters: &'static Counters,
 ) -> Loop {
@@ -510,6 +539,7 @@ pub fn make_loop(
             y: Ad5541::new(device(spi2(), Pin::output(GPIOC, 7))),
         },
         core,
+        link,
         tel,
         cmds,
         counters,
