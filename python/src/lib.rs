@@ -398,7 +398,8 @@ fn identify_file(
 /// diagnosis: raised with `resume_unwind`, which runs no panic hook (nothing printed).
 struct Interrupted(PyErr);
 
-/// Diagnoses a recording held in memory as `visco diagnose` does; returns the report's JSON
+/// Diagnoses a recording held in memory (checked against the contract by the caller, with
+/// `write`) as `visco diagnose` does; returns the report's JSON
 /// text (the command's, less the output file names) and the per-sample series as
 /// (name, array) columns, `phase` as a list of str.
 #[pyfunction]
@@ -433,10 +434,8 @@ fn diagnose<'py>(
             })
             .collect::<PyResult<Vec<_>>>()?,
     };
+    // The caller has checked the contract (`Recording.check`, as the command's reader does).
     let rec = recording_from_py(meta, columns)?;
-    // The contract, checked by the same writer the command's reader mirrors.
-    let dir = tempdir(py)?;
-    write_checked(py, &rec, &dir.path().join("recording.csv"), Some(&label))?;
     let opts = SearchOptions {
         alpha,
         max_effects,
@@ -515,17 +514,6 @@ fn read_series<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, PyLis
         identify_error(py, &e)
     })?;
     parse_series(py, &text)
-}
-
-fn tempdir(py: Python<'_>) -> PyResult<tempfile::TempDir> {
-    tempfile::tempdir().map_err(|e| {
-        let e = IdentifyError::io(
-            &std::env::temp_dir(),
-            "cannot create a temporary directory",
-            &e,
-        );
-        identify_error(py, &e)
-    })
 }
 
 /// The simulated instruments `simulate` offers (the concealed-effect suite's setups).
