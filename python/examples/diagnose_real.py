@@ -8,17 +8,8 @@ which are given as a user would: 0.1 N/m, 50 nm/nA, 1 kHz), diagnoses it (which 
 findings and saves a figure of the recorded deflection against the nominal and the extended
 model, with the residuals before and after. No display needed (matplotlib's Agg backend).
 
-The same arrays could come from afmformats (not a dependency; a sketch, check the signs):
-
-    import afmformats
-    fd = afmformats.load_data(path)[0]             # an AFMForceDistance
-    k = fd.metadata["spring constant"]             # N/m
-    rec = visco.Recording.from_arrays(
-        fd["time"],                                # s
-        fd["height (measured)"],                   # m; visco's U is z up
-        -fd["force"] / k,                          # m; visco's D = -F/k (F > 0 repulsive)
-        spring_constant=k, tip_radius=5e-6,
-        sample_rate=fd.metadata["sampling rate"])  # Hz
+Arrays read by other tools (afmformats, ...) go through visco.Recording.from_arrays: see
+from_afmformats.py beside this file.
 """
 
 from __future__ import annotations
