@@ -4,8 +4,8 @@
 
 Reads a vendor file from ../shared/data/real/ (default: the NT-MDT force curve on a gel,
 recorded for its adhesion; its file lacks the spring constant, the sensitivity and the rate,
-which are given as a user would: 0.1 N/m, 50 nm/nA, 1 kHz), diagnoses it (which physics the nominal Kelvin-Voigt model left out), prints the
-findings and saves a figure of the recorded deflection against the nominal and the extended
+which are given as a user would: 0.1 N/m, 50 nm/nA, 1 kHz), diagnoses it (which physics the
+nominal Kelvin-Voigt model left out), prints the findings and saves a figure of the recorded deflection against the nominal and the extended
 model, with the residuals before and after. No display needed (matplotlib's Agg backend).
 
 Arrays read by other tools (afmformats, ...) go through visco.Recording.from_arrays: see

@@ -26,8 +26,9 @@ fn usage() -> &'static str {
   firmware-report [--json FILE] [--no-replay]
                                 all measurements; JSON as documented in firmware/README.md
   test                          everything: install tools, fmt, no_std build, host tests,
-                                firmware tests (what CI runs)
+                                firmware tests, the Python package (what CI runs)
   firmware-test                 what `cargo xtask test` runs for the firmware
+  python-test                   what `cargo xtask test` runs for the Python package (python/)
   flash-stm32h743 [--chip C]    build the STM32H743 image and run it with probe-rs (RTT log)
   link-throughput               diagnostic: each direction of the QEMU UART link alone
   lockstep                      closed loop: host plant ↔ firmware under QEMU, one round trip
@@ -177,6 +178,7 @@ fn main() -> ExitCode {
                 !rest.iter().any(|a| a == "--no-replay"),
             ),
             "firmware-test" => firmware::firmware_tests(),
+            "python-test" => xtask::suite::python_tests(),
             // Placeholder until the workspace's own `test` task lands: the host tests of the
             // default members, then the firmware tests.
             "test" => xtask::suite::run_all(),

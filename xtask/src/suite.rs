@@ -93,7 +93,7 @@ const PY_PACKAGES: [&str; 4] = [
 /// into a virtualenv of its own with maturin, pytest, numpy and matplotlib from the package
 /// registry, and runs python/tests (round trips against the command, errors, units, the
 /// example). Fails loudly when Python or the registry is missing.
-fn python_tests() -> Result<()> {
+pub fn python_tests() -> Result<()> {
     let root = firmware::root();
     let venv = firmware::target_dir().join("pyenv");
     let bin = venv.join("bin");
