@@ -127,10 +127,13 @@ enum Task {
         #[arg(long)]
         no_replay: bool,
     },
-    /// Everything: install tools, fmt, no_std build, host tests, firmware tests (what CI runs).
+    /// Everything: install tools, fmt, no_std build, host tests, firmware tests, the Python
+    /// package (what CI runs).
     Test,
     /// What `cargo xtask test` runs for the firmware.
     FirmwareTest,
+    /// What `cargo xtask test` runs for the Python package (python/).
+    PythonTest,
     /// Build the STM32H743 image and run it with probe-rs (RTT log).
     FlashStm32h743 {
         #[arg(long, default_value = "STM32H743ZITx")]
@@ -249,6 +252,7 @@ fn run(task: Task) -> Result<(), String> {
         }
         Task::Test => xtask::suite::run_all(),
         Task::FirmwareTest => firmware::firmware_tests(),
+        Task::PythonTest => xtask::suite::python_tests(),
         Task::FlashStm32h743 { chip } => firmware::flash_stm32h743(&chip),
         Task::LinkThroughput => firmware::link_throughput(),
         Task::Lockstep => firmware::lockstep().map(|_| ()),

@@ -10,6 +10,8 @@
 //!    boots, SysTick is calibrated, replay under QEMU is bit-identical to the host; the same
 //!    for the fixed-point (Q31.32) build on the Cortex-M3, with its instruction counts and
 //!    its error against f64.
+//! 6. Builds the Python package (python/, maturin) in a virtualenv of its own and runs its
+//!    pytest suite against the `visco` command.
 
 use crate::firmware::{self, Result};
 use std::process::Command;
@@ -63,14 +65,95 @@ pub fn run_all() -> Result<()> {
             ])
         },
     )?;
+    // The Python extension (visco-python) links only as maturin builds it: its step is below.
     step("host tests (cargo test)", || {
-        cargo(&["test", "--workspace", "--exclude", "visco-firmware"])
+        cargo(&[
+            "test",
+            "--workspace",
+            "--exclude",
+            "visco-firmware",
+            "--exclude",
+            "visco-python",
+        ])
     })?;
     step(
         "core digests equal to xtask/core-digests.txt (bit-identical core)",
         || crate::digest::check(&firmware::core_digest_lines()?),
     )?;
     step("firmware tests (QEMU)", firmware::firmware_tests)?;
+    step("Python package (maturin, pytest)", python_tests)?;
     eprintln!("all tests passed in {:.0} s", t.elapsed().as_secs_f64());
     Ok(())
+}
+
+/// Python packages the suite installs into its virtualenv (`target/pyenv`).
+const PY_PACKAGES: [&str; 4] = [
+    "maturin>=1.9,<2",
+    "pytest>=7",
+    "numpy>=1.20",
+    "matplotlib>=3.5",
+];
+
+/// Builds the `visco` command and the Python package (profile `pyext`), installs the package
+/// into a virtualenv of its own with maturin, pytest, numpy and matplotlib from the package
+/// registry, and runs python/tests (round trips against the command, errors, units, the
+/// example). Fails loudly when Python or the registry is missing.
+pub fn python_tests() -> Result<()> {
+    let root = firmware::root();
+    let venv = firmware::target_dir().join("pyenv");
+    let bin = venv.join("bin");
+    let python = bin.join("python");
+    let run = |cmd: &mut Command| -> Result<()> {
+        let shown = format!("{cmd:?}");
+        let status = cmd.status().map_err(|e| format!("{shown}: {e}"))?;
+        if status.success() {
+            Ok(())
+        } else {
+            Err(format!("{shown} failed: {status}"))
+        }
+    };
+    if !python.is_file() {
+        let made = run(Command::new("python3").args(["-m", "venv"]).arg(&venv));
+        if made.is_err() {
+            // Debian's python3 lacks venv until python3-venv is installed.
+            eprintln!("python3 -m venv failed: installing python3 and python3-venv");
+            run(Command::new("apt-get").arg("update"))?;
+            run(Command::new("apt-get").args(["install", "-y", "python3", "python3-venv"]))?;
+            run(Command::new("python3").args(["-m", "venv"]).arg(&venv))?;
+        }
+    }
+    run(Command::new(&python)
+        .args([
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--disable-pip-version-check",
+        ])
+        .args(PY_PACKAGES))?;
+    cargo(&[
+        "build",
+        "--profile",
+        "pyext",
+        "-p",
+        "visco",
+        "--bin",
+        "visco",
+    ])?;
+    let path = std::env::join_paths(std::iter::once(bin.clone()).chain(std::env::split_paths(
+        &std::env::var_os("PATH").unwrap_or_default(),
+    )))
+    .map_err(|e| format!("PATH: {e}"))?;
+    run(Command::new(bin.join("maturin"))
+        .current_dir(root.join("python"))
+        .env("VIRTUAL_ENV", &venv)
+        .env("PATH", &path)
+        .args(["develop", "--profile", "pyext"]))?;
+    run(Command::new(&python)
+        .current_dir(root.join("python"))
+        .env(
+            "VISCO_CLI",
+            firmware::target_dir().join("pyext").join("visco"),
+        )
+        .args(["-m", "pytest", "-q", "tests"]))
 }

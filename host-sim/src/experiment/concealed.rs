@@ -321,6 +321,23 @@ fn run(
     noise: bool,
     seed: u64,
 ) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    run_with(
+        setup,
+        sample,
+        effect.map_or(&[], std::slice::from_ref),
+        noise,
+        seed,
+    )
+}
+
+/// [`run`] with any number of effects.
+fn run_with(
+    setup: &Setup,
+    sample: &Sample,
+    effects: &[EffectSpec],
+    noise: bool,
+    seed: u64,
+) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let mut cfg = setup.plant_config();
     cfg.thermal_noise = noise;
     if !noise {
@@ -333,7 +350,7 @@ fn run(
     let x0 = 0.0;
     let y0 = 0.0;
     plant.settle(setup.u_at(0.0), x0, y0);
-    if let Some(e) = effect {
+    for e in effects {
         plant.add_effect(e.build());
     }
     let dec = setup.decimation();
@@ -507,33 +524,70 @@ pub fn scenario(effect: Option<EffectKind>, seed: u64) -> Scenario {
     let (spec, ratio, truth, d_rec) = match effect {
         None => (None, 0.0, clean.clone(), noisy_clean),
         Some(kind) => {
-            let (shape, mut a) = draw_shape(kind, &setup, &mut r);
-            let a_max = amplitude_max(kind);
-            let want = target * noise_m;
-            let mut best = (f64::INFINITY, a, 0.0);
-            for _ in 0..12 {
-                let spec = effect_spec(kind, &setup, &shape, a);
-                let (_, _, d) = run(&setup, &sample, Some(&spec), false, noise_seed);
-                let p = peak_difference(&d, &clean);
-                let err = (p / want).ln().abs();
-                if err < best.0 {
-                    best = (err, a, p);
-                }
-                if err < 0.03 {
-                    break;
-                }
-                let next = if p > 0.0 { a * want / p } else { a * 10.0 };
-                // Damped secant: the response is close to linear in the amplitude.
-                a = (a * (next / a).clamp(0.1, 10.0)).min(a_max);
-            }
-            let a = best.1;
-            let spec = effect_spec(kind, &setup, &shape, a);
+            let spec = calibrate(
+                kind,
+                &setup,
+                &sample,
+                &mut r,
+                target * noise_m,
+                &clean,
+                noise_seed,
+            );
             let (_, _, truth) = run(&setup, &sample, Some(&spec), false, noise_seed);
             let (_, _, d_rec) = run(&setup, &sample, Some(&spec), true, noise_seed);
             let ratio = peak_difference(&truth, &clean) / noise_m;
             (Some(spec), ratio, truth, d_rec)
         }
     };
+    let rec = recording(&setup, seed, t, u, d_rec);
+    Scenario {
+        effect,
+        seed,
+        setup,
+        target_ratio: target,
+        spec,
+        ratio,
+        noise_m,
+        recording: rec,
+        truth_d_m: truth,
+        clean_d_m: clean,
+    }
+}
+
+/// Draws `kind`'s shape for `setup` and calibrates its amplitude, on noise-free runs, so that
+/// the largest |ΔD| against `clean` is `want` (m).
+fn calibrate(
+    kind: EffectKind,
+    setup: &Setup,
+    sample: &Sample,
+    r: &mut Draw,
+    want: f64,
+    clean: &[f64],
+    noise_seed: u64,
+) -> EffectSpec {
+    let (shape, mut a) = draw_shape(kind, setup, r);
+    let a_max = amplitude_max(kind);
+    let mut best = (f64::INFINITY, a, 0.0);
+    for _ in 0..12 {
+        let spec = effect_spec(kind, setup, &shape, a);
+        let (_, _, d) = run(setup, sample, Some(&spec), false, noise_seed);
+        let p = peak_difference(&d, clean);
+        let err = (p / want).ln().abs();
+        if err < best.0 {
+            best = (err, a, p);
+        }
+        if err < 0.03 {
+            break;
+        }
+        let next = if p > 0.0 { a * want / p } else { a * 10.0 };
+        // Damped secant: the response is close to linear in the amplitude.
+        a = (a * (next / a).clamp(0.1, 10.0)).min(a_max);
+    }
+    effect_spec(kind, setup, &shape, best.1)
+}
+
+/// The recording of a run of `setup`, with the metadata an instrument would write.
+fn recording(setup: &Setup, seed: u64, t: Vec<f64>, u: Vec<f64>, d: Vec<f64>) -> Recording {
     let mode = if setup.tap {
         Mode::Dive
     } else {
@@ -559,19 +613,94 @@ pub fn scenario(effect: Option<EffectKind>, seed: u64) -> Scenario {
     let mut rec = Recording::new(meta);
     rec.t_s = t;
     rec.u_m = u;
-    rec.d_m = d_rec;
-    Scenario {
-        effect,
-        seed,
+    rec.d_m = d;
+    rec
+}
+
+/// One tap or force curve of a suite setup with effects switched on by name (what
+/// `visco.simulate` in Python runs): to see what each left-out effect does to D.
+#[derive(Clone, Debug)]
+pub struct Simulated {
+    pub setup: Setup,
+    /// Each effect as calibrated, and the largest |ΔD| it alone causes over the noise RMS.
+    pub effects: Vec<(EffectSpec, f64)>,
+    /// Noise RMS of D (m), measured on the same run without effects.
+    pub noise_m: f64,
+    /// The recording (with the plant's noise and ADC unless `noise` was false).
+    pub recording: Recording,
+    /// The noise-free D with the effects and without (m).
+    pub truth_d_m: Vec<f64>,
+    pub clean_d_m: Vec<f64>,
+}
+
+/// Simulates setup `name` (see [`setups`]) with `effects`, each calibrated as the suite
+/// calibrates one: its shape drawn from `seed`, its amplitude so that alone it changes D by at
+/// most `magnitude` × the noise RMS.
+pub fn simulate(
+    name: &str,
+    effects: &[EffectKind],
+    magnitude: f64,
+    seed: u64,
+    noise: bool,
+) -> Result<Simulated, String> {
+    let all = setups();
+    let Some(setup) = all.iter().find(|s| s.name == name).cloned() else {
+        return Err(format!(
+            "setup `{name}` is not one of {}",
+            all.iter().map(|s| s.name).collect::<Vec<_>>().join(", ")
+        ));
+    };
+    if !(magnitude.is_finite() && magnitude > 0.0 && magnitude <= 1000.0) {
+        return Err(format!(
+            "magnitude {magnitude} is not in (0, 1000] (multiples of the noise RMS)"
+        ));
+    }
+    for (i, k) in effects.iter().enumerate() {
+        if effects[..i].contains(k) {
+            return Err(format!("effect `{k}` is named twice"));
+        }
+        if *k == EffectKind::SecondEigenmode && !setup.tap {
+            return Err(format!(
+                "second-eigenmode needs a tap: a force curve ({name}) samples far below it"
+            ));
+        }
+    }
+    let mut r = Draw(seed.wrapping_mul(0x2545_F491_4F6C_DD1D));
+    let sample = setup.sample([r.next(), r.next()]);
+    let noise_seed = seed.wrapping_mul(7919).wrapping_add(17);
+    let (t, u, clean) = run(&setup, &sample, None, false, noise_seed);
+    let (_, _, noisy_clean) = run(&setup, &sample, None, true, noise_seed);
+    let noise_m = crate::identify::signal::rms(noisy_clean.iter().zip(&clean).map(|(a, b)| a - b));
+    let mut specs = Vec::with_capacity(effects.len());
+    for &k in effects {
+        let spec = calibrate(
+            k,
+            &setup,
+            &sample,
+            &mut r,
+            magnitude * noise_m,
+            &clean,
+            noise_seed,
+        );
+        let (_, _, d) = run(&setup, &sample, Some(&spec), false, noise_seed);
+        let ratio = peak_difference(&d, &clean) / noise_m;
+        specs.push((spec, ratio));
+    }
+    let list: Vec<EffectSpec> = specs.iter().map(|(s, _)| s.clone()).collect();
+    let (_, _, truth) = run_with(&setup, &sample, &list, false, noise_seed);
+    let d_rec = if noise {
+        run_with(&setup, &sample, &list, true, noise_seed).2
+    } else {
+        truth.clone()
+    };
+    Ok(Simulated {
+        recording: recording(&setup, seed, t, u, d_rec),
         setup,
-        target_ratio: target,
-        spec,
-        ratio,
+        effects: specs,
         noise_m,
-        recording: rec,
         truth_d_m: truth,
         clean_d_m: clean,
-    }
+    })
 }
 
 // ---------------------------------------------------------------------------------------
