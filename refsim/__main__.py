@@ -46,7 +46,7 @@ def write(out: str, cls: str, seed: int, sc: dict) -> str:
         "# source: refsim (independent reference simulator, issue 13)",
         "t_s,u_m,d_m",
     ]
-    rows = [f"{t:.9e},{u!r},{d!r}" for t, u, d in zip(sc["t_s"], sc["u_m"], sc["d_m"])]
+    rows = [f"{t:.9e},{float(u)!r},{float(d)!r}" for t, u, d in zip(sc["t_s"], sc["u_m"], sc["d_m"])]
     tmp = os.path.join(out, f".{stem}.csv.tmp")
     with open(tmp, "w") as f:
         f.write("\n".join(lines + rows) + "\n")
@@ -69,7 +69,7 @@ def write(out: str, cls: str, seed: int, sc: dict) -> str:
         json.dump(truth, f, indent=1)
     with open(os.path.join(out, f"{stem}.truth.csv"), "w") as f:
         f.write("t_s,d_true_m,d_clean_m\n")
-        f.writelines(f"{t:.9e},{a!r},{b!r}\n"
+        f.writelines(f"{t:.9e},{float(a)!r},{float(b)!r}\n"
                      for t, a, b in zip(sc["t_s"], sc["truth_d_m"], sc["clean_d_m"]))
     os.replace(tmp, os.path.join(out, f"{stem}.csv"))
     return stem
