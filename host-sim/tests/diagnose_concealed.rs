@@ -1,5 +1,6 @@
 //! The concealed-effect suite, reduced: three recordings per effect and three clean ones,
-//! over the six setups, each effect at 3–10× the noise RMS (the full suite, 20 seeds per
+//! over all six setups (`ci_jobs`: tap-liquid and curve-soft included), each effect at
+//! 3–10× the noise RMS (the full suite, 20 seeds per
 //! class, is `cargo run --release -- concealed --seeds 20`; its figures are in the README).
 //!
 //! Asserted: nothing is named on the clean recordings; the top-1 name is right on at least
@@ -11,13 +12,20 @@
 //! worse than the nominal one.
 
 use visco::diagnose::search::SearchOptions;
-use visco::experiment::concealed::{run_seeds, SuiteReport};
+use visco::experiment::concealed::{ci_jobs, run_jobs, setup_of, setups, SuiteReport};
 
 fn suite() -> SuiteReport {
     let opts = SearchOptions::default();
-    // Seeds 0, 3, 5 of every class: taps in air, colloid and gel force curves (the second
-    // eigenmode on taps in air and on the stiff lever).
-    run_seeds(&[0, 3, 5], 2, &opts, &|_, _, _| {})
+    let jobs = ci_jobs();
+    // Every setup is met, by the clean recordings and by the effects.
+    for s in setups() {
+        assert!(
+            jobs.iter().any(|&(e, seed)| setup_of(e, seed) == s.name),
+            "the CI subset never runs {}",
+            s.name
+        );
+    }
+    run_jobs(&jobs, 2, &opts, &|_, _, _| {})
 }
 
 #[test]
@@ -26,18 +34,42 @@ fn concealed_effects_are_named_and_clean_recordings_are_not() {
     let mut lines = Vec::new();
     for r in &report.rows {
         lines.push(format!(
-            "{:<20} seed {} {:<14} {:>5.1}× noise: named {:?}, truth misfit {:.3e} → {:.3e} m",
+            "{:<20} seed {} {:<14} {:>5.1}× noise: named {:?}{}, truth misfit {:.3e} → {:.3e} m",
             r.effect.map_or("clean", |k| k.as_str()),
             r.seed,
             r.setup,
             r.ratio,
             r.named.iter().map(|k| k.as_str()).collect::<Vec<_>>(),
+            if r.extra_wrong() {
+                " (extra wrong)"
+            } else {
+                ""
+            },
             r.truth_error_before_m,
             r.truth_error_after_m
         ));
     }
     let table = lines.join("\n");
-    println!("{table}\n{}", report.confusion_markdown());
+    println!(
+        "{table}\n{}\n{}",
+        report.confusion_markdown(),
+        report.per_class_markdown()
+    );
+    // The per-class counts add up to the rows.
+    let per = report.per_class();
+    assert_eq!(
+        per.iter().map(|c| c.recordings).sum::<usize>(),
+        report.rows.len()
+    );
+    for c in &per {
+        if c.class.is_some() {
+            // Right first: either exactly right or with an extra wrong finding.
+            assert_eq!(c.exact + c.extra_wrong, c.top1_right, "{c:?}");
+        } else {
+            assert_eq!(c.extra_wrong, 0);
+            assert_eq!(c.top1_right + c.any_wrong, c.recordings, "{c:?}");
+        }
+    }
     let clean: Vec<_> = report.rows.iter().filter(|r| r.effect.is_none()).collect();
     assert_eq!(clean.len(), 3);
     for r in &clean {

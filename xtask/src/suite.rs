@@ -12,6 +12,9 @@
 //!    its error against f64.
 //! 6. Builds the Python package (python/, maturin) in a virtualenv of its own and runs its
 //!    pytest suite against the `visco` command.
+//! 7. The independent reference simulator (refsim/, Python): a venv in target/refsim-venv
+//!    with numpy, scipy and pytest from PyPI, its closed-form tests, then one recording per
+//!    class (discrete beds only, for time) generated and diagnosed by visco (`tests/concealed_refsim.rs`, figures printed).
 
 use crate::firmware::{self, Result};
 use std::process::Command;
@@ -82,6 +85,10 @@ pub fn run_all() -> Result<()> {
     )?;
     step("firmware tests (QEMU)", firmware::firmware_tests)?;
     step("Python package (maturin, pytest)", python_tests)?;
+    step(
+        "refsim: closed forms and the concealed suite on its recordings",
+        refsim_tests,
+    )?;
     eprintln!("all tests passed in {:.0} s", t.elapsed().as_secs_f64());
     Ok(())
 }
@@ -156,4 +163,81 @@ pub fn python_tests() -> Result<()> {
             firmware::target_dir().join("pyext").join("visco"),
         )
         .args(["-m", "pytest", "-q", "tests"]))
+/// Runs a program from the workspace root, failing loudly.
+fn run_in_root(program: &str, args: &[&str], env: &[(&str, &str)]) -> Result<()> {
+    let status = Command::new(program)
+        .current_dir(firmware::root())
+        .args(args)
+        .envs(env.iter().copied())
+        .status()
+        .map_err(|e| format!("{program} {}: {e}", args.join(" ")))?;
+    if status.success() {
+        Ok(())
+    } else {
+        Err(format!("`{program} {}` failed: {status}", args.join(" ")))
+    }
+}
+
+/// refsim's venv (target/refsim-venv, its own so that no other Python step is disturbed),
+/// its closed-form tests, and the reduced independent suite: one seed per class.
+fn refsim_tests() -> Result<()> {
+    let root = firmware::root();
+    let venv = root.join("target/refsim-venv");
+    let python = venv.join("bin/python");
+    if !python.exists() {
+        run_in_root("python3", &["-m", "venv", "target/refsim-venv"], &[])?;
+    }
+    let py = python.to_string_lossy().into_owned();
+    run_in_root(
+        &py,
+        &[
+            "-m",
+            "pip",
+            "install",
+            "-q",
+            "-r",
+            "refsim/requirements.txt",
+        ],
+        &[],
+    )?;
+    run_in_root(&py, &["-m", "pytest", "-q", "refsim/tests"], &[])?;
+    let dir = root.join("target/refsim-ci");
+    if dir.exists() {
+        std::fs::remove_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    }
+    let dir_s = dir.to_string_lossy().into_owned();
+    run_in_root(
+        &py,
+        &[
+            "-m",
+            "refsim",
+            "generate",
+            "--out",
+            &dir_s,
+            "--seeds",
+            "1",
+            "--jobs",
+            "2",
+            "--discrete-only",
+        ],
+        &[],
+    )?;
+    cargo_env(
+        &[
+            "test",
+            "-p",
+            "visco",
+            "--test",
+            "concealed_refsim",
+            "--",
+            "--ignored",
+            "--nocapture",
+        ],
+        &[("VISCO_REFSIM_DIR", &dir_s)],
+    )
+}
+
+fn cargo_env(args: &[&str], env: &[(&str, &str)]) -> Result<()> {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    run_in_root(&cargo, args, env)
 }

@@ -6,7 +6,7 @@ use clap::Args;
 
 use super::CliResult;
 use visco::diagnose::search::SearchOptions;
-use visco::experiment::concealed::run_suite;
+use visco::experiment::concealed::{run_recordings, run_suite, SuiteReport, SuiteRow};
 
 #[derive(Debug, Args)]
 #[command(after_help = "\
@@ -14,7 +14,14 @@ Generates recordings with the project's plant (six cantilevers, tips, beds and p
 dynamic taps at 0.2-1 MHz and quasi-static force curves at 1-5 kHz), each with one effect
 at a magnitude where D with and without it differ by only 3-10x the noise RMS, plus clean
 ones, and diagnoses each. Prints the confusion matrix, the top-1 accuracy, the false-alarm
-rate on clean recordings and the RMS cut; --json writes every row.")]
+rate on clean recordings and the RMS cut; --json writes every row.
+
+With --recordings DIR it also diagnoses every recording of DIR made by another simulator
+(`python -m refsim generate --out DIR`, see refsim/README.md): each DIR/<stem>.csv with its
+truth beside it (<stem>.truth.json: class, amplitude; <stem>.truth.csv: the noise-free D),
+which is read only to score. Both suites are reported separately, each with its confusion
+matrix and, per class, the top-1 right, the right ones with an extra wrong finding (a
+recording named [right, wrong]), the exactly right and the clean false alarms.")]
 pub struct ConcealedArgs {
     /// Recordings per effect (and clean ones).
     #[arg(long, value_name = "N", default_value_t = 20)]
@@ -27,6 +34,14 @@ pub struct ConcealedArgs {
     /// The report.
     #[arg(long, value_name = "FILE.json")]
     pub json: Option<PathBuf>,
+
+    /// Also diagnose the recordings of DIR (with truth sidecars, e.g. from refsim).
+    #[arg(long, value_name = "DIR")]
+    pub recordings: Option<PathBuf>,
+
+    /// Skip the project's own plant suite (with --recordings).
+    #[arg(long, requires = "recordings")]
+    pub no_plant: bool,
 
     /// Family-wise false-alarm rate of each selection step.
     #[arg(long, value_name = "P", default_value_t = 0.01)]
@@ -57,10 +72,9 @@ pub fn run(args: ConcealedArgs) -> CliResult {
         alpha: args.alpha,
         ..SearchOptions::default()
     };
-    let t = std::time::Instant::now();
-    let report = run_suite(args.seeds, threads, &opts, &|done, total, row| {
+    let progress = |done: usize, total: usize, row: &SuiteRow| {
         eprintln!(
-            "[{done}/{total}] {} seed {} ({}, {:.1}× noise): named {} in {:.1} s",
+            "[{done}/{total}] {} seed {} ({}, {:.1}× noise): named {} in {:.1} s{}",
             row.effect.map_or("clean", |k| k.as_str()),
             row.seed,
             row.setup,
@@ -74,18 +88,60 @@ pub fn run(args: ConcealedArgs) -> CliResult {
                     .collect::<Vec<_>>()
                     .join(", ")
             },
-            row.wall_s
+            row.wall_s,
+            row.error
+                .as_ref()
+                .map_or(String::new(), |e| format!(" (refused: {e})"))
         );
-    });
+    };
+    let mut out = visco::identify::json::Json::obj();
+    if !args.no_plant {
+        let t = std::time::Instant::now();
+        let report = run_suite(args.seeds, threads, &opts, &progress);
+        println!("## The plant suite (visco's own simulator)\n");
+        print_report(&report, t.elapsed().as_secs_f64());
+        out = report.to_json();
+    }
+    if let Some(dir) = &args.recordings {
+        let t = std::time::Instant::now();
+        let report = run_recordings(dir, threads, &opts, &progress)?;
+        println!(
+            "\n## The independent suite ({}: recordings visco did not make)\n",
+            dir.display()
+        );
+        print_report(&report, t.elapsed().as_secs_f64());
+        let mut indep = report.to_json();
+        indep.set("recordings_dir", dir.display().to_string());
+        out = if args.no_plant {
+            visco::identify::json::Json::obj().with("independent", indep)
+        } else {
+            visco::identify::json::Json::obj()
+                .with("plant", out)
+                .with("independent", indep)
+        };
+    }
+    if let Some(path) = args.json {
+        std::fs::write(&path, out.to_pretty())
+            .map_err(|e| format!("{}: cannot write: {e}", path.display()))?;
+        println!("  -> {}", path.display());
+    }
+    Ok(())
+}
+
+fn print_report(report: &SuiteReport, wall_s: f64) {
     println!("{}", report.confusion_markdown());
+    println!("{}", report.per_class_markdown());
     println!(
-        "top-1 accuracy {:.1} % over {} recordings with an effect; false alarms {:.1} % of {} \
-         clean ones; {:.0} s",
+        "top-1 accuracy {:.1} % over {} recordings with an effect ({:.1} % of the right ones \
+         with an extra wrong finding); false alarms {:.1} % of {} clean ones; nominal held-out \
+         RMS on clean ones {:.2}× the noise RMS (median); {:.0} s",
         100.0 * report.top1_accuracy(),
         report.rows.iter().filter(|r| r.effect.is_some()).count(),
+        100.0 * report.extra_wrong_rate(),
         100.0 * report.false_alarm_rate(),
         report.rows.iter().filter(|r| r.effect.is_none()).count(),
-        t.elapsed().as_secs_f64()
+        report.clean_rms_over_noise(),
+        wall_s
     );
     println!("| effect | named first | median cut of the hidden misfit | cut ≥ 2× | median cut over its span |");
     println!("|---|---|---|---|---|");
@@ -95,10 +151,4 @@ pub fn run(args: ConcealedArgs) -> CliResult {
             two * 100.0
         );
     }
-    if let Some(path) = args.json {
-        std::fs::write(&path, report.to_json().to_pretty())
-            .map_err(|e| format!("{}: cannot write: {e}", path.display()))?;
-        println!("  -> {}", path.display());
-    }
-    Ok(())
 }

@@ -713,7 +713,8 @@ pub struct SuiteRow {
     /// The effect concealed (None: clean).
     pub effect: Option<EffectKind>,
     pub seed: u64,
-    pub setup: &'static str,
+    /// The setup's name (plant suite) or the recording's file stem (independent suite).
+    pub setup: String,
     /// Largest |ΔD| over the noise RMS, as generated.
     pub ratio: f64,
     pub noise_m: f64,
@@ -731,6 +732,8 @@ pub struct SuiteRow {
     pub span_rms_after_m: f64,
     /// Wall time of the diagnosis (s).
     pub wall_s: f64,
+    /// Why the diagnosis refused the recording, if it did (counted as naming nothing).
+    pub error: Option<String>,
 }
 
 impl SuiteRow {
@@ -742,6 +745,34 @@ impl SuiteRow {
     pub fn correct(&self) -> bool {
         self.top() == self.effect
     }
+    /// Names other than the concealed effect (on a clean recording: every name).
+    pub fn wrong_names(&self) -> usize {
+        self.named
+            .iter()
+            .filter(|k| Some(**k) != self.effect)
+            .count()
+    }
+    /// An effect recording named right first but with a wrong finding after it
+    /// (e.g. [stress-relaxation, hydrodynamic-drag] for a stress relaxation).
+    pub fn extra_wrong(&self) -> bool {
+        self.effect.is_some() && self.correct() && self.wrong_names() > 0
+    }
+    /// Named exactly right: the concealed effect alone, or nothing on a clean recording.
+    pub fn exact(&self) -> bool {
+        self.correct() && self.wrong_names() == 0
+    }
+}
+
+/// One class's counts (see [`SuiteReport::per_class`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ClassCount {
+    pub class: Option<EffectKind>,
+    pub recordings: usize,
+    pub top1_right: usize,
+    pub extra_wrong: usize,
+    pub exact: usize,
+    pub any_wrong: usize,
+    pub refused: usize,
 }
 
 /// The suite's outcome: every row and the summary.
@@ -759,14 +790,39 @@ pub fn diagnose_scenario(
     opts: &crate::diagnose::search::SearchOptions,
 ) -> SuiteRow {
     let sc = scenario(effect, seed);
+    score(
+        effect,
+        seed,
+        sc.setup.name.to_string(),
+        sc.ratio,
+        sc.noise_m,
+        &sc.recording,
+        &sc.truth_d_m,
+        opts,
+    )
+}
+
+/// Diagnoses `rec` and scores it against the concealed class and the noise-free D with the
+/// effect (`truth_d_m`, one per sample), which the diagnosis never sees.
+#[allow(clippy::too_many_arguments)]
+pub fn score(
+    effect: Option<EffectKind>,
+    seed: u64,
+    setup: String,
+    ratio: f64,
+    noise_m: f64,
+    rec: &Recording,
+    truth_d_m: &[f64],
+    opts: &crate::diagnose::search::SearchOptions,
+) -> SuiteRow {
     let t = std::time::Instant::now();
-    let row = match crate::diagnose::report::analyse(&sc.recording, opts, |_| {}) {
+    let row = match crate::diagnose::report::analyse(rec, opts, |_| {}) {
         Ok(d) => {
             let held = &d.problem.held;
-            let rms = |a: &[f64], b: &[f64], mask: &dyn Fn(usize) -> bool| {
+            let rms = |a: &[f64], b: &[f64]| {
                 let (mut s, mut n) = (0.0, 0usize);
-                for i in 0..a.len() {
-                    if held[i] && mask(i) {
+                for i in 0..a.len().min(b.len()).min(held.len()) {
+                    if held[i] {
                         s += (a[i] - b[i]).powi(2);
                         n += 1;
                     }
@@ -777,7 +833,6 @@ pub fn diagnose_scenario(
                     (s / n as f64).sqrt()
                 }
             };
-            let all = |_: usize| true;
             let (sb, sa) = match d.findings.first() {
                 Some(f) => (f.rms_before_m, f.rms_after_m),
                 None => (f64::NAN, f64::NAN),
@@ -785,25 +840,26 @@ pub fn diagnose_scenario(
             SuiteRow {
                 effect,
                 seed,
-                setup: sc.setup.name,
-                ratio: sc.ratio,
-                noise_m: sc.noise_m,
+                setup,
+                ratio,
+                noise_m,
                 named: d.findings.iter().map(|f| f.kind).collect(),
                 rms_before_m: d.rms_before_m,
                 rms_after_m: d.rms_after_m,
-                truth_error_before_m: rms(&d.nominal_d_m, &sc.truth_d_m, &all),
-                truth_error_after_m: rms(&d.final_d_m, &sc.truth_d_m, &all),
+                truth_error_before_m: rms(&d.nominal_d_m, truth_d_m),
+                truth_error_after_m: rms(&d.final_d_m, truth_d_m),
                 span_rms_before_m: sb,
                 span_rms_after_m: sa,
                 wall_s: 0.0,
+                error: None,
             }
         }
-        Err(_) => SuiteRow {
+        Err(e) => SuiteRow {
             effect,
             seed,
-            setup: sc.setup.name,
-            ratio: sc.ratio,
-            noise_m: sc.noise_m,
+            setup,
+            ratio,
+            noise_m,
             named: Vec::new(),
             rms_before_m: f64::NAN,
             rms_after_m: f64::NAN,
@@ -812,6 +868,7 @@ pub fn diagnose_scenario(
             span_rms_before_m: f64::NAN,
             span_rms_after_m: f64::NAN,
             wall_s: 0.0,
+            error: Some(e),
         },
     };
     SuiteRow {
@@ -848,6 +905,67 @@ pub fn run_seeds(
             jobs.push((Some(k), seed));
         }
     }
+    let mut report = run_jobs(&jobs, threads, opts, progress);
+    report.seeds = seeds.len() as u64;
+    report
+}
+
+/// The reduced suite `cargo xtask test` runs: three seeds per class, chosen so that every
+/// setup is met (class i takes seeds i, i + 2, i + 4, and the setup is the seed modulo six:
+/// even classes meet the even setups, odd ones the odd), tap-liquid and curve-soft included.
+pub fn ci_jobs() -> Vec<(Option<EffectKind>, u64)> {
+    let mut classes: Vec<Option<EffectKind>> = vec![None];
+    classes.extend(EffectKind::ALL.iter().map(|k| Some(*k)));
+    let mut jobs = Vec::new();
+    for (i, c) in classes.into_iter().enumerate() {
+        for j in 0..3u64 {
+            jobs.push((c, i as u64 + 2 * j));
+        }
+    }
+    jobs
+}
+
+/// The suite's setup for `(effect, seed)` (as [`scenario`] picks it, without running it).
+pub fn setup_of(effect: Option<EffectKind>, seed: u64) -> &'static str {
+    let all = setups();
+    if effect == Some(EffectKind::SecondEigenmode) {
+        let taps: Vec<&Setup> = all.iter().filter(|s| s.tap).collect();
+        taps[(seed as usize) % taps.len()].name
+    } else {
+        all[(seed as usize) % all.len()].name
+    }
+}
+
+/// Diagnoses the given `(effect, seed)` scenarios of the plant suite on `threads` threads.
+pub fn run_jobs(
+    jobs: &[(Option<EffectKind>, u64)],
+    threads: usize,
+    opts: &crate::diagnose::search::SearchOptions,
+    progress: &(dyn Fn(usize, usize, &SuiteRow) + Sync),
+) -> SuiteReport {
+    let work: Vec<Box<dyn Fn() -> SuiteRow + Sync + '_>> = jobs
+        .iter()
+        .map(|&(effect, seed)| {
+            Box::new(move || diagnose_scenario(effect, seed, opts))
+                as Box<dyn Fn() -> SuiteRow + Sync>
+        })
+        .collect();
+    let mut seeds: Vec<u64> = jobs.iter().map(|j| j.1).collect();
+    seeds.sort_unstable();
+    seeds.dedup();
+    SuiteReport {
+        rows: run_parallel(&work, threads, progress),
+        seeds: seeds.len() as u64,
+        alpha: opts.alpha,
+    }
+}
+
+/// Runs every job on `threads` threads, rows in the jobs' order.
+fn run_parallel(
+    jobs: &[Box<dyn Fn() -> SuiteRow + Sync + '_>],
+    threads: usize,
+    progress: &(dyn Fn(usize, usize, &SuiteRow) + Sync),
+) -> Vec<SuiteRow> {
     let total = jobs.len();
     let next = std::sync::atomic::AtomicUsize::new(0);
     let rows = std::sync::Mutex::new(Vec::with_capacity(total));
@@ -855,10 +973,10 @@ pub fn run_seeds(
         for _ in 0..threads.max(1) {
             s.spawn(|| loop {
                 let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                let Some(&(effect, seed)) = jobs.get(i) else {
+                let Some(job) = jobs.get(i) else {
                     break;
                 };
-                let row = diagnose_scenario(effect, seed, opts);
+                let row = job();
                 let mut r = rows.lock().unwrap_or_else(|e| e.into_inner());
                 r.push((i, row.clone()));
                 progress(r.len(), total, &row);
@@ -867,11 +985,142 @@ pub fn run_seeds(
     });
     let mut rows = rows.into_inner().unwrap_or_else(|e| e.into_inner());
     rows.sort_by_key(|(i, _)| *i);
-    SuiteReport {
-        rows: rows.into_iter().map(|(_, r)| r).collect(),
+    rows.into_iter().map(|(_, r)| r).collect()
+}
+
+// ---------------------------------------------------------------------------------------
+// The independent suite: recordings from another simulator (refsim/), with truth sidecars
+// ---------------------------------------------------------------------------------------
+
+/// One recording of a directory and its truth: `<stem>.csv`, `<stem>.truth.json` (class,
+/// seed, peak difference over noise, noise RMS) and `<stem>.truth.csv` (t_s, d_true_m: the
+/// noise-free D with the effect). The diagnosis reads only the recording.
+pub struct TruthRecording {
+    pub stem: String,
+    pub recording: Recording,
+    pub effect: Option<EffectKind>,
+    pub seed: u64,
+    pub ratio: f64,
+    pub noise_m: f64,
+    pub truth_d_m: Vec<f64>,
+}
+
+/// Reads every `*.csv` of `dir` that has a `.truth.json` beside it (the truth CSVs
+/// themselves excluded), sorted by name. Errors name the file and the reason.
+pub fn read_truth_dir(dir: &std::path::Path) -> Result<Vec<TruthRecording>, String> {
+    let entries =
+        std::fs::read_dir(dir).map_err(|e| format!("{}: cannot list: {e}", dir.display()))?;
+    let mut stems: Vec<String> = Vec::new();
+    for e in entries {
+        let e = e.map_err(|e| format!("{}: cannot list: {e}", dir.display()))?;
+        let name = e.file_name().to_string_lossy().into_owned();
+        if let Some(stem) = name.strip_suffix(".csv") {
+            if !stem.ends_with(".truth") && !name.starts_with('.') {
+                stems.push(stem.to_string());
+            }
+        }
+    }
+    stems.sort();
+    let mut out = Vec::with_capacity(stems.len());
+    for stem in stems {
+        let json_path = dir.join(format!("{stem}.truth.json"));
+        let text = std::fs::read_to_string(&json_path)
+            .map_err(|e| format!("{}: cannot read the truth: {e}", json_path.display()))?;
+        let truth: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| format!("{}: not JSON: {e}", json_path.display()))?;
+        let class = truth["class"]
+            .as_str()
+            .ok_or_else(|| format!("{}: no string `class`", json_path.display()))?;
+        let effect = if class == "clean" {
+            None
+        } else {
+            Some(EffectKind::parse(class).ok_or_else(|| {
+                format!("{}: class `{class}` is not an effect", json_path.display())
+            })?)
+        };
+        let num = |key: &str| -> Result<f64, String> {
+            truth[key]
+                .as_f64()
+                .ok_or_else(|| format!("{}: no number `{key}`", json_path.display()))
+        };
+        let rec_path = dir.join(format!("{stem}.csv"));
+        let recording = Recording::read(&rec_path).map_err(|e| e.to_string())?;
+        let truth_path = dir.join(format!("{stem}.truth.csv"));
+        let text = std::fs::read_to_string(&truth_path)
+            .map_err(|e| format!("{}: cannot read: {e}", truth_path.display()))?;
+        let mut truth_d_m = Vec::with_capacity(recording.len());
+        for (i, line) in text.lines().enumerate().skip(1) {
+            let cell = line
+                .split(',')
+                .nth(1)
+                .ok_or_else(|| format!("{}:{}: no d_true_m column", truth_path.display(), i + 1))?;
+            truth_d_m.push(
+                cell.trim()
+                    .parse::<f64>()
+                    .map_err(|e| format!("{}:{}: `{cell}`: {e}", truth_path.display(), i + 1))?,
+            );
+        }
+        if truth_d_m.len() != recording.len() {
+            return Err(format!(
+                "{}: {} truth samples for {} recorded",
+                truth_path.display(),
+                truth_d_m.len(),
+                recording.len()
+            ));
+        }
+        out.push(TruthRecording {
+            stem,
+            recording,
+            effect,
+            seed: num("seed")? as u64,
+            ratio: num("peak_difference_over_noise")?,
+            noise_m: num("noise_rms_m")?,
+            truth_d_m,
+        });
+    }
+    if out.is_empty() {
+        return Err(format!(
+            "{}: no recording with a .truth.json beside it (make some with \
+             `python -m refsim generate --out DIR`)",
+            dir.display()
+        ));
+    }
+    Ok(out)
+}
+
+/// Diagnoses every recording of `dir` (see [`read_truth_dir`]) and scores it with its truth.
+pub fn run_recordings(
+    dir: &std::path::Path,
+    threads: usize,
+    opts: &crate::diagnose::search::SearchOptions,
+    progress: &(dyn Fn(usize, usize, &SuiteRow) + Sync),
+) -> Result<SuiteReport, String> {
+    let recs = read_truth_dir(dir)?;
+    let work: Vec<Box<dyn Fn() -> SuiteRow + Sync + '_>> = recs
+        .iter()
+        .map(|r| {
+            Box::new(move || {
+                score(
+                    r.effect,
+                    r.seed,
+                    r.stem.clone(),
+                    r.ratio,
+                    r.noise_m,
+                    &r.recording,
+                    &r.truth_d_m,
+                    opts,
+                )
+            }) as Box<dyn Fn() -> SuiteRow + Sync>
+        })
+        .collect();
+    let mut seeds: Vec<u64> = recs.iter().map(|r| r.seed).collect();
+    seeds.sort_unstable();
+    seeds.dedup();
+    Ok(SuiteReport {
+        rows: run_parallel(&work, threads, progress),
         seeds: seeds.len() as u64,
         alpha: opts.alpha,
-    }
+    })
 }
 
 /// Labels of the confusion matrix: the ten effects, then "clean" / "nothing".
@@ -890,6 +1139,73 @@ impl SuiteReport {
         let clean: Vec<&SuiteRow> = self.rows.iter().filter(|r| r.effect.is_none()).collect();
         clean.iter().filter(|r| !r.named.is_empty()).count() as f64 / clean.len().max(1) as f64
     }
+    /// Share of the effect recordings named right first that also carry a wrong finding.
+    pub fn extra_wrong_rate(&self) -> f64 {
+        let right: Vec<&SuiteRow> = self
+            .rows
+            .iter()
+            .filter(|r| r.effect.is_some() && r.correct())
+            .collect();
+        right.iter().filter(|r| r.extra_wrong()).count() as f64 / right.len().max(1) as f64
+    }
+
+    /// Per class (the ten effects, then clean): recordings, top-1 right, right but with an
+    /// extra wrong finding, named exactly right, and any wrong name at all (on clean ones:
+    /// the false alarms).
+    pub fn per_class(&self) -> Vec<ClassCount> {
+        let mut classes: Vec<Option<EffectKind>> =
+            EffectKind::ALL.iter().map(|k| Some(*k)).collect();
+        classes.push(None);
+        classes
+            .into_iter()
+            .map(|c| {
+                let rows: Vec<&SuiteRow> = self.rows.iter().filter(|r| r.effect == c).collect();
+                ClassCount {
+                    class: c,
+                    recordings: rows.len(),
+                    top1_right: rows.iter().filter(|r| r.correct()).count(),
+                    extra_wrong: rows.iter().filter(|r| r.extra_wrong()).count(),
+                    exact: rows.iter().filter(|r| r.exact()).count(),
+                    any_wrong: rows.iter().filter(|r| r.wrong_names() > 0).count(),
+                    refused: rows.iter().filter(|r| r.error.is_some()).count(),
+                }
+            })
+            .collect()
+    }
+
+    /// [`Self::per_class`] as a Markdown table.
+    pub fn per_class_markdown(&self) -> String {
+        let mut s = String::from(
+            "| class | recordings | top-1 right | right + extra wrong finding | exactly right | \
+             any wrong name (clean: false alarm) | refused |\n|---|---|---|---|---|---|---|\n",
+        );
+        for c in self.per_class() {
+            s.push_str(&format!(
+                "| {} | {} | {} | {} | {} | {} | {} |\n",
+                c.class.map_or("clean", |k| k.as_str()),
+                c.recordings,
+                c.top1_right,
+                c.extra_wrong,
+                c.exact,
+                c.any_wrong,
+                c.refused
+            ));
+        }
+        s
+    }
+
+    /// Median over the clean recordings of the nominal held-out RMS over the noise RMS.
+    pub fn clean_rms_over_noise(&self) -> f64 {
+        let v: Vec<f64> = self
+            .rows
+            .iter()
+            .filter(|r| r.effect.is_none())
+            .map(|r| r.rms_before_m / r.noise_m)
+            .filter(|x| x.is_finite())
+            .collect();
+        crate::identify::signal::median(&v)
+    }
+
     /// Per effect: (recordings, right, median cut of the systematic error, share of right
     /// ones with a cut ≥ 2, median cut of the held-out RMS over the located span).
     pub fn per_effect(&self) -> Vec<(EffectKind, usize, usize, f64, f64, f64)> {
@@ -990,7 +1306,7 @@ impl SuiteReport {
                 Json::obj()
                     .with("concealed", label(r.effect))
                     .with("seed", r.seed)
-                    .with("setup", r.setup)
+                    .with("setup", r.setup.as_str())
                     .with("peak_difference_over_noise", r.ratio)
                     .with("noise_rms_m", r.noise_m)
                     .with(
@@ -998,6 +1314,9 @@ impl SuiteReport {
                         Json::Arr(r.named.iter().map(|k| Json::from(k.as_str())).collect()),
                     )
                     .with("correct", r.correct())
+                    .with("extra_wrong_finding", r.extra_wrong())
+                    .with("wrong_names", r.wrong_names())
+                    .with("refused", r.error.clone().unwrap_or_default())
                     .with("rms_before_m", r.rms_before_m)
                     .with("rms_after_m", r.rms_after_m)
                     .with("truth_error_before_m", r.truth_error_before_m)
@@ -1025,6 +1344,29 @@ impl SuiteReport {
             .with("alpha", self.alpha)
             .with("top1_accuracy", self.top1_accuracy())
             .with("false_alarm_rate", self.false_alarm_rate())
+            .with("extra_wrong_rate", self.extra_wrong_rate())
+            .with(
+                "clean_nominal_rms_over_noise_median",
+                self.clean_rms_over_noise(),
+            )
+            .with(
+                "per_class",
+                Json::Arr(
+                    self.per_class()
+                        .into_iter()
+                        .map(|c| {
+                            Json::obj()
+                                .with("class", c.class.map_or("clean", |k| k.as_str()))
+                                .with("recordings", c.recordings)
+                                .with("top1_right", c.top1_right)
+                                .with("right_with_extra_wrong_finding", c.extra_wrong)
+                                .with("exactly_right", c.exact)
+                                .with("any_wrong_name", c.any_wrong)
+                                .with("refused", c.refused)
+                        })
+                        .collect(),
+                ),
+            )
             .with("per_effect", Json::Arr(per))
             .with("confusion_markdown", self.confusion_markdown())
             .with(
