@@ -440,6 +440,8 @@ fn diagnose<'py>(
         alpha,
         max_effects,
         kinds,
+        // The command's default (the machine's cores); the result does not depend on it.
+        ..SearchOptions::default()
     };
     let outcome = py.detach(|| {
         catch_unwind(AssertUnwindSafe(|| {
