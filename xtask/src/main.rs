@@ -134,6 +134,8 @@ enum Task {
     FirmwareTest,
     /// What `cargo xtask test` runs for the Python package (python/).
     PythonTest,
+    /// What `cargo xtask test` runs for the independent reference simulator (refsim/).
+    RefsimTest,
     /// Build the STM32H743 image and run it with probe-rs (RTT log).
     FlashStm32h743 {
         #[arg(long, default_value = "STM32H743ZITx")]
@@ -253,6 +255,7 @@ fn run(task: Task) -> Result<(), String> {
         Task::Test => xtask::suite::run_all(),
         Task::FirmwareTest => firmware::firmware_tests(),
         Task::PythonTest => xtask::suite::python_tests(),
+        Task::RefsimTest => xtask::suite::refsim_tests(),
         Task::FlashStm32h743 { chip } => firmware::flash_stm32h743(&chip),
         Task::LinkThroughput => firmware::link_throughput(),
         Task::Lockstep => firmware::lockstep().map(|_| ()),

@@ -13,8 +13,8 @@
 //! 6. Builds the Python package (python/, maturin) in a virtualenv of its own and runs its
 //!    pytest suite against the `visco` command.
 //! 7. The independent reference simulator (refsim/, Python): a venv in target/refsim-venv
-//!    with numpy, scipy and pytest from PyPI, its closed-form tests, then one recording for
-//!    each of three classes (clean, baseline-tilt, second-eigenmode; discrete beds, for time) generated and diagnosed by visco (`tests/concealed_refsim.rs`, figures printed).
+//!    with numpy, scipy and pytest from PyPI, its closed-form tests, then one recording per
+//!    class (discrete beds only, for time) generated and diagnosed by visco (`tests/concealed_refsim.rs`, figures printed).
 
 use crate::firmware::{self, Result};
 use std::process::Command;
@@ -182,7 +182,7 @@ fn run_in_root(program: &str, args: &[&str], env: &[(&str, &str)]) -> Result<()>
 
 /// refsim's venv (target/refsim-venv, its own so that no other Python step is disturbed),
 /// its closed-form tests, and the reduced independent suite: one seed per class.
-fn refsim_tests() -> Result<()> {
+pub fn refsim_tests() -> Result<()> {
     let root = firmware::root();
     let venv = root.join("target/refsim-venv");
     let python = venv.join("bin/python");
@@ -221,10 +221,12 @@ fn refsim_tests() -> Result<()> {
             "--jobs",
             "2",
             "--discrete-only",
-            // Three classes keep the step within CI's budget (about 1 min of Python per
-            // recording); the full suite is `python -m refsim generate` (refsim/README.md).
+            // Every class but hydrodynamic drag: on a discrete-bed force curve refsim's drag
+            // calibration reaches only 0.2x the noise (a generator defect, issue 13), which
+            // the magnitude check below would rightly refuse.
             "--classes",
-            "clean,baseline-tilt,second-eigenmode",
+            "clean,nonlinear-stiffness,adhesion,surface-attraction,stress-relaxation,\
+             baseline-tilt,thermal-drift,second-eigenmode,piezo-creep,plastic-deformation",
         ],
         &[],
     )?;
