@@ -190,13 +190,20 @@ impl<T: Real> Watch<T> {
     /// Watch one estimator update; true when the reset policy triggers (the counters restart).
     #[inline(always)]
     pub fn diverging(&mut self, p: &GuardParams<T>, info: UpdateInfo, e: T, w: T) -> bool {
+        self.e_mean += p.mean_weight * (e.abs() - self.e_mean);
+        self.w_mean += p.mean_weight * (w.abs() - self.w_mean);
+        let far = self.e_mean > p.residual_ratio * self.w_mean;
+        self.tally(p, info, far)
+    }
+
+    /// The reset policy shared by the per-sample and the per-block watch: `diverge` updates in a
+    /// row at a bound, projected or far off; a trigger restarts the counters.
+    #[inline(always)]
+    fn tally(&mut self, p: &GuardParams<T>, info: UpdateInfo, far: bool) -> bool {
         let count = |c: &mut u32, on: bool| {
             *c = if on { c.saturating_add(1) } else { 0 };
             *c >= p.diverge
         };
-        self.e_mean += p.mean_weight * (e.abs() - self.e_mean);
-        self.w_mean += p.mean_weight * (w.abs() - self.w_mean);
-        let far = self.e_mean > p.residual_ratio * self.w_mean;
         let a = count(&mut self.bound_count, info.at_bound);
         let b = count(&mut self.projected_count, info.projected);
         let c = count(&mut self.residual_count, far);
@@ -224,24 +231,10 @@ impl<T: Real> Watch<T> {
     /// squared: the RMS residual against `residual_ratio` times the RMS of w).
     #[inline(always)]
     pub fn diverging_ms(&mut self, p: &GuardParams<T>, info: UpdateInfo, e_ms: T, w_ms: T) -> bool {
-        let count = |c: &mut u32, on: bool| {
-            *c = if on { c.saturating_add(1) } else { 0 };
-            *c >= p.diverge
-        };
         self.e_mean += p.mean_weight * (e_ms - self.e_mean);
         self.w_mean += p.mean_weight * (w_ms - self.w_mean);
         let far = self.e_mean > p.residual_ratio * p.residual_ratio * self.w_mean;
-        let a = count(&mut self.bound_count, info.at_bound);
-        let b = count(&mut self.projected_count, info.projected);
-        let c = count(&mut self.residual_count, far);
-        if a || b || c {
-            self.bound_count = 0;
-            self.projected_count = 0;
-            self.residual_count = 0;
-            true
-        } else {
-            false
-        }
+        self.tally(p, info, far)
     }
 }
 
