@@ -44,8 +44,8 @@ struct Out {
 
 fn print_point(name: &str, p: &sweep::SweepPoint) {
     eprintln!(
-        "{name} {:>7.3} s: {:>7.1} px/s  RMS h/c/k {:>6.2} / {:>6.2} / {:>6.2} %  max away from steep {:>6.2} / {:>6.2} / {:>6.2} %  failed {}  {}",
-        p.period_s, p.pixels_per_s, p.rms_error_pct[0], p.rms_error_pct[1], p.rms_error_pct[2], p.max_error_not_steep_pct[0], p.max_error_not_steep_pct[1], p.max_error_not_steep_pct[2], p.failed, if sweep::meets_goal(p) { "meets the goal" } else { "" }
+        "{name} {:>7.3} s: {:>7.1} px/s  RMS h/c/k {:>6.2} / {:>6.2} / {:>6.2} %  max away from steep {:>6.2} / {:>6.2} / {:>6.2} %  failed {}  (paper scaling RMS {:.2} / {:.2} / {:.2} %; block {} samples)  {}",
+        p.period_s, p.pixels_per_s, p.rms_error_pct[0], p.rms_error_pct[1], p.rms_error_pct[2], p.max_error_not_steep_pct[0], p.max_error_not_steep_pct[1], p.max_error_not_steep_pct[2], p.failed, p.paper_rms_error_pct[0], p.paper_rms_error_pct[1], p.paper_rms_error_pct[2], p.block_samples, if sweep::meets_goal(p) { "meets the goal" } else { "" }
     );
 }
 
@@ -99,7 +99,7 @@ pub fn run(args: SweepArgs) -> CliResult {
         out.sve_fastest_meeting_goal = sweep::fastest_meeting_goal(&out.sve).cloned();
         plot(
             &args.out.join("sweep_sve.png"),
-            "SVE: accuracy against pixel rate (5 lines × 50 px, instrument scaling)",
+            "SVE: accuracy against pixel rate (20 lines × 50 px, instrument scaling)",
             &out.sve,
         )?;
     }

@@ -223,29 +223,52 @@ pub fn continuum_apex_depth(tip_radius_m: f64, effective_m: f64) -> f64 {
     0.5 * (lo + hi)
 }
 
-/// Central-difference gradient of a regular grid of heights (row-major, `nx` × `ny`, spacing
-/// `dx`, `dy`), one-sided at the edges; NaN neighbours are skipped (zero gradient when none).
+/// Gradient of a regular grid of heights (row-major, `nx` × `ny`, spacing `dx`, `dy`): central
+/// differences inside, second-order one-sided ones at the ends (`(−3h₀ + 4h₁ − h₂)/2d`: the
+/// first-order forward difference is the slope half a step inwards, off by `h''·d/2` — on the
+/// cell's cap, 0.06 at 250 nm between lines, against the 0.144 that makes a footprint steep);
+/// NaN neighbours are skipped (first order, or zero gradient when none).
 pub fn grid_gradient(h: &[f64], nx: usize, ny: usize, dx: f64, dy: f64) -> Vec<[f64; 2]> {
-    let at = |i: usize, j: usize| h[j * nx + i];
-    let diff = |a: f64, b: f64, d: f64| {
-        if a.is_finite() && b.is_finite() && d > 0.0 {
-            (b - a) / d
+    let at = |i: isize, j: isize| -> f64 {
+        if i < 0 || j < 0 || i >= nx as isize || j >= ny as isize {
+            f64::NAN
         } else {
-            0.0
+            h[j as usize * nx + i as usize]
         }
     };
     let mut g = vec![[0.0; 2]; nx * ny];
-    for j in 0..ny {
-        for i in 0..nx {
-            let (i0, i1) = (i.saturating_sub(1), (i + 1).min(nx - 1));
-            let (j0, j1) = (j.saturating_sub(1), (j + 1).min(ny - 1));
-            g[j * nx + i] = [
-                diff(at(i0, j), at(i1, j), (i1 - i0) as f64 * dx),
-                diff(at(i, j0), at(i, j1), (j1 - j0) as f64 * dy),
+    for j in 0..ny as isize {
+        for i in 0..nx as isize {
+            g[j as usize * nx + i as usize] = [
+                derivative(|m| at(i + m, j), dx),
+                derivative(|m| at(i, j + m), dy),
             ];
         }
     }
     g
+}
+
+/// d/ds of `f` at 0 from its values at integer steps of `d`: central where both neighbours are
+/// finite, else second-order one-sided, else first-order one-sided, else 0.
+fn derivative(f: impl Fn(isize) -> f64, d: f64) -> f64 {
+    let ok = |v: &[f64]| v.iter().all(|x| x.is_finite()) && d > 0.0;
+    let (m1, z, p1) = (f(-1), f(0), f(1));
+    if ok(&[m1, p1]) {
+        return (p1 - m1) / (2.0 * d);
+    }
+    for s in [1isize, -1] {
+        let (a, b) = (f(s), f(2 * s));
+        if ok(&[z, a, b]) {
+            return s as f64 * (-3.0 * z + 4.0 * a - b) / (2.0 * d);
+        }
+    }
+    for s in [1isize, -1] {
+        let a = f(s);
+        if ok(&[z, a]) {
+            return s as f64 * (a - z) / d;
+        }
+    }
+    0.0
 }
 
 /// Curvature (∂²h/∂x², ∂²h/∂x∂y, ∂²h/∂y²) of a regular grid of heights (row-major, `nx` × `ny`,
@@ -296,9 +319,9 @@ pub fn grid_curvature(
                 } else {
                     d2(at(i, j - 2), at(i, j - 1), at(i, j), dy)
                 };
-                let v = (at(i + 1, j + 1) - at(i - 1, j + 1) - at(i + 1, j - 1) + at(i - 1, j - 1))
-                    / (4.0 * dx * dy);
-                (if v.is_finite() { v } else { 0.0 }, hyy)
+                // ∂/∂y of the row's ∂h/∂x (one-sided at the first and last row, as the gradient).
+                let hx = |m: isize| (at(i + 1, j + m) - at(i - 1, j + m)) / (2.0 * dx);
+                (derivative(hx, dy), hyy)
             } else {
                 (0.0, 0.0)
             };
