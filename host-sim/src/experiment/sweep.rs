@@ -20,8 +20,13 @@
 //! * SVE depth controller kᵢ: the tracking error of an integral loop on a ramp is
 //!   slope·speed/(kᵢ·g); kᵢ grows with the scan speed, `kᵢ = 2000/s · (v / 5 µm/s)^½`, capped at
 //!   2.5 % of the loop rate (the discrete integrator's limit);
-//! * SVE high-pass: the tones must pass and the topography's changes must not; its corner
-//!   follows the rate at which features pass under the tip, `v/(0.5 µm)`, between f₂/8 and f₂/4;
+//! * SVE high-pass: the tones must pass and what the scan does to the contact must not. The
+//!   scan's fastest change is the element lattice passing under the tip, at v/pitch (50 Hz on
+//!   2 s lines, 1.7 kHz on 0.06 s lines), each element engaging and releasing at the rim, so the
+//!   corner follows `v/pitch` (pitch: the bed's stated lattice) between f₂/8 and f₂/2.5 (a
+//!   corner at f₂/8 left k̂ biased by −1 % of k_max on 0.06 s lines; at f₂/2.5 the tones still
+//!   pass with both sides of the regression filtered alike). It followed `v/0.5 µm` (a feature
+//!   crossed) up to f₂/4 before: 0.06 s lines k RMS 5.03 → 1.9 %;
 //! * DIVE approach and retract speed: the vertical travel (~1 µm) in a fifth of the tap, at most
 //!   the validation's limit of 1 nm per loop period; settle and read-out scale with the tap; the
 //!   lateral move lasts at least three ring-down times 2Q/ω₀ of the free cantilever, so that the
@@ -117,7 +122,7 @@ pub fn sve_setup(line_period_s: f64, sample_rate_hz: f64, seed: u64) -> Setup {
     c.sve.estimator = block_for_memory(c.sve.estimator, sample_rate_hz);
     c.sve.ki_per_s = (2000.0 * (speed / 5e-6).sqrt()).min(0.025 * sample_rate_hz);
     let f2 = c.sve.excitation.f2_hz;
-    c.sve.highpass_hz = (speed / 0.5e-6).clamp(f2 / 8.0, f2 / 4.0);
+    c.sve.highpass_hz = (speed / setup.sample.pitch_m()).clamp(f2 / 8.0, f2 / 2.5);
     setup
 }
 
