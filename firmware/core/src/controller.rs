@@ -396,11 +396,21 @@ const BITS: FaultBits = FaultBits {
 
 /// Sums for a read-out average of [c, k, h, depth]. Values are accumulated as deviations from
 /// the first sample so that f32 keeps its precision over tens of thousands of samples.
+///
+/// With the block estimator θ̂ changes only when a block's result is adopted, so its entries
+/// (the first `L` of a sample, [`Self::add_held`]) need no per-sample sums: the loop counts
+/// the samples that saw the same θ̂ (`pending`) and [`Self::settle`] adds them as
+/// `count·(θ̂ − base)` once per block, before θ̂ changes. [`Self::add`] is the per-sample form,
+/// for the per-sample law (blocks of one), where θ̂ changes every sample.
 #[derive(Clone, Copy, Debug, Default)]
 struct Accumulator<T> {
     base: [T; 4],
     sum: [T; 4],
     n: u32,
+    /// Samples since the θ̂ entries were last added to `sum`, all with the values `held`.
+    pending: u32,
+    /// The θ̂ entries of the pending samples (the others equal `base`, so they add 0).
+    held: [T; 3],
     flags: u32,
 }
 
@@ -417,12 +427,46 @@ impl<T: crate::Real> Accumulator<T> {
         self.flags |= flags;
     }
 
+    /// One sample whose first `L` entries are θ̂ as it stands until the next [`Self::settle`].
+    #[inline(always)]
+    fn add_held<const L: usize>(&mut self, v: [T; 4], flags: u32) {
+        if self.pending == 0 {
+            if self.n == 0 {
+                self.base = v;
+                self.held = [v[0], v[1], v[2]];
+            }
+            for i in 0..L.min(3) {
+                self.held[i] = v[i];
+            }
+        }
+        for i in L.min(4)..4 {
+            self.sum[i] += v[i] - self.base[i];
+        }
+        self.pending += 1;
+        self.n += 1;
+        self.flags |= flags;
+    }
+
+    /// The pending samples' θ̂ entries into the sums: before θ̂ changes.
+    #[inline(always)]
+    fn settle(&mut self) {
+        if self.pending > 0 {
+            let count = T::from_i32(self.pending as i32);
+            for i in 0..3 {
+                self.sum[i] += (self.held[i] - self.base[i]) * count;
+            }
+            self.pending = 0;
+        }
+    }
+
     fn mean(&self) -> [T; 4] {
-        let mut m = self.base;
-        if self.n > 0 {
-            let inv = T::ONE / T::from_i32(self.n as i32);
+        let mut acc = *self;
+        acc.settle();
+        let mut m = acc.base;
+        if acc.n > 0 {
+            let inv = T::ONE / T::from_i32(acc.n as i32);
             for i in 0..4 {
-                m[i] += self.sum[i] * inv;
+                m[i] += acc.sum[i] * inv;
             }
         }
         m
@@ -943,6 +987,9 @@ impl<T: SineTable> Controller<T> {
         if r.epoch != self.epoch {
             return;
         }
+        // The read-out sums take the samples of the θ̂ about to be replaced.
+        self.dive.acc.settle();
+        self.sve.acc.settle();
         if r.target.two() {
             self.theta2 = [r.theta[0], r.theta[1]];
         } else {
@@ -1099,6 +1146,8 @@ impl<T: SineTable> Controller<T> {
 
     /// A new tap or scan: the estimator at θ̂₀ with P₀, the divergence watch restarted.
     fn restart_estimator(&mut self, target: Target, theta0: [T; 3]) {
+        self.dive.acc.settle();
+        self.sve.acc.settle();
         self.task.restart(target, theta0);
         self.task.restart_watch();
         self.theta2 = self.task.estimator2().theta();
@@ -1239,9 +1288,12 @@ impl<T: SineTable> Controller<T> {
                     *st |= f;
                     if t >= self.dive.readout_from {
                         // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
-                        self.dive
-                            .acc
-                            .add([th[0], th[1], th[2], h - self.reg.z().x], f);
+                        let v = [th[0], th[1], th[2], h - self.reg.z().x];
+                        if block {
+                            self.dive.acc.add_held::<3>(v, f);
+                        } else {
+                            self.dive.acc.add(v, f);
+                        }
                         *st |= status::READOUT;
                     }
                 }
@@ -1589,7 +1641,11 @@ impl<T: SineTable> Controller<T> {
                     self.p.sve.x1 + (self.p.sve.x0 - self.p.sve.x1) * f
                 };
                 self.set_x_same_y(x);
-                self.sve.acc.add(v, flags);
+                if self.p.dec_sve > 1 {
+                    self.sve.acc.add_held::<2>(v, flags);
+                } else {
+                    self.sve.acc.add(v, flags);
+                }
                 read = true;
                 self.sve.x_acc += self.x - self.p.sve.x0;
                 if t >= self.sve.next_boundary {
