@@ -939,7 +939,7 @@ impl<T: SineTable> Controller<T> {
             Some(Mode::Sve) | None if p.sve.regressor == SveRegressor::Decoupled => {
                 let th = self.theta2;
                 let force = p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
-                (th[0], th[1], (self.reg.z().x + force / th[1]))
+                (th[0], th[1], (self.reg.z_x() + force / th[1]))
             }
             _ => {
                 let th = self.theta3;
@@ -1242,7 +1242,7 @@ impl<T: SineTable> Controller<T> {
             }
             Phase::Indent => {
                 *st |= status::CONTACT;
-                let depth = self.dive.h - self.reg.z().x;
+                let depth = self.dive.h - self.reg.z_x();
                 if self.dive_force_limit(d, &mut u, st) {
                     // Retracted.
                 } else if depth >= self.p.dive.indent {
@@ -1288,7 +1288,7 @@ impl<T: SineTable> Controller<T> {
                     *st |= f;
                     if t >= self.dive.readout_from {
                         // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
-                        let v = [th[0], th[1], th[2], h - self.reg.z().x];
+                        let v = [th[0], th[1], th[2], h - self.reg.z_x()];
                         if block {
                             self.dive.acc.add_held::<3>(v, f);
                         } else {
@@ -1538,7 +1538,7 @@ impl<T: SineTable> Controller<T> {
                         }
                         let th = self.theta2;
                         let depth = force / th[1];
-                        ([th[0], th[1], T::ZERO], self.reg.z().x + depth, depth)
+                        ([th[0], th[1], T::ZERO], self.reg.z_x() + depth, depth)
                     }
                     SveRegressor::Paper => {
                         if input_ok {
@@ -1618,7 +1618,7 @@ impl<T: SineTable> Controller<T> {
             SveRegressor::Decoupled => (th[0], th[1]),
             SveRegressor::Paper => (th3[0], th3[1]),
         };
-        let h = self.reg.z().x;
+        let h = self.reg.z_x();
         if self.sve_sequence(t, [c, k, h, T::ZERO], status::CONTACT_LOST) {
             *st |= status::READOUT;
         }
