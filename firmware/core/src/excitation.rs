@@ -2,7 +2,9 @@
 //!
 //! Each tone is a unit phasor `(cos θ, sin θ)` rotated by a complex multiplication per sample
 //! (four products and two sums, against ~17 operations and two table loads for a corrected
-//! table read), and set again from an exact integer phase every [`RESYNC`] samples.
+//! table read), and set again from an exact integer phase every [`RESYNC`] samples. (In
+//! floating point; the fixed-point type reads the table at every sample, see
+//! [`SineTable::PHASOR`].)
 //!
 //! **The phase is exact, and the phasor never strays far from it.** A 32-bit phase accumulator
 //! advanced by an integer increment per sample is what defines the tone: after 10⁸ or 10¹²
@@ -88,6 +90,14 @@ pub static SIN_TABLE_F32: [f32; TABLE_SIZE] = table_f32();
 
 /// A number type with a sine table.
 pub trait SineTable: Real + 'static {
+    /// Tones from rotating phasors (true), or from the table at every sample (false).
+    /// Floating point: the rotation's four products are cheaper than a corrected table read.
+    /// Fixed point (Q31.32) keeps the table: there the table read's products are by
+    /// constants or by operands the compiler knows to be small (their partial products fold
+    /// away), while the rotation's are general 64 × 64-bit products; measured on the
+    /// Cortex-M3 (`cargo xtask bench --m3 --fixed`), the phasors cost ~190 instructions more
+    /// per sample.
+    const PHASOR: bool = true;
     /// sin(2π·i/TABLE_LEN) for i in 0..TABLE_SIZE.
     fn sine_table() -> &'static [Self; TABLE_SIZE];
 }
@@ -235,7 +245,8 @@ impl<T: SineTable> Excitation<T> {
         )
     }
 
-    /// Unit phasors `(cos, sin)` of the two tones at the latest sample (for tests).
+    /// Unit phasors `(cos, sin)` of the two tones at the latest sample (for tests; zero for
+    /// a type that reads the table at every sample, `SineTable::PHASOR` false).
     pub fn phasors(&self) -> ([T; 2], [T; 2]) {
         (self.ph1, self.ph2)
     }
@@ -258,6 +269,13 @@ impl<T: SineTable> Excitation<T> {
     /// Both tones advanced one sample: `a₁·sin θ₁ + a₂·sin θ₂`.
     #[inline(always)]
     fn tones(&mut self, p: &ExcitationParams<T>) -> T {
+        if !T::PHASOR {
+            // The table at every sample (`left` stays 0: the phases are the latest sample's).
+            self.phase1 = self.phase1.wrapping_add(p.tone1.increment);
+            self.phase2 = self.phase2.wrapping_add(p.tone2.increment);
+            return p.tone1.amplitude * sine::<T>(self.phase1)
+                + p.tone2.amplitude * sine::<T>(self.phase2);
+        }
         if self.left == 0 {
             self.start_chunk(p);
         } else {
