@@ -435,8 +435,8 @@ impl<T: crate::Real> Accumulator<T> {
                 self.base = v;
                 self.held = [v[0], v[1], v[2]];
             }
-            for i in 0..L.min(3) {
-                self.held[i] = v[i];
+            for (h, x) in self.held.iter_mut().zip(v).take(L) {
+                *h = x;
             }
         }
         for i in L.min(4)..4 {
@@ -1728,5 +1728,73 @@ impl<T: SineTable> Controller<T> {
         self.record = Some(Record::Pixel(rec));
         s.acc.clear();
         s.x_acc = T::ZERO;
+    }
+}
+
+#[cfg(test)]
+mod accumulator_tests {
+    use super::Accumulator;
+
+    /// The per-block sums of θ̂ give the mean of the per-sample sums: θ̂ held over blocks of
+    /// uneven length (a restart mid-block included), the other entries per sample. In f64 the
+    /// two differ only by rounding (n·x against n additions of x).
+    #[test]
+    fn held_sums_equal_per_sample_sums() {
+        let mut per_sample = Accumulator::<f64>::default();
+        let mut held = Accumulator::<f64>::default();
+        let mut theta = [3.0, 50.0, -7.0];
+        let mut k = 0u32;
+        for block in [1u32, 32, 17, 32, 5, 32, 32, 9] {
+            for _ in 0..block {
+                let x = 0.37 * f64::from(k) - 1e-3 * f64::from(k * k % 97);
+                let v = [theta[0], theta[1], theta[2], x];
+                per_sample.add(v, k & 3);
+                held.add_held::<3>(v, k & 3);
+                k += 1;
+            }
+            // A block's result adopted: θ̂ moves; the held sums take their samples first.
+            held.settle();
+            theta = [
+                theta[0] * 1.01 + 0.2,
+                theta[1] - 0.7,
+                theta[2] + 0.05 * f64::from(block),
+            ];
+        }
+        // The last stretch without a settle: the mean must take it too.
+        for _ in 0..13 {
+            let v = [theta[0], theta[1], theta[2], 2.5];
+            per_sample.add(v, 0);
+            held.add_held::<3>(v, 0);
+        }
+        let (a, b) = (per_sample.mean(), held.mean());
+        assert_eq!((per_sample.n, per_sample.flags), (held.n, held.flags));
+        for i in 0..4 {
+            assert!(
+                (a[i] - b[i]).abs() <= 1e-12 * a[i].abs().max(1.0),
+                "entry {i}: {} vs {}",
+                a[i],
+                b[i]
+            );
+        }
+        // An SVE-style accumulator (two held entries): the third and fourth per sample.
+        let (mut p2, mut h2) = (Accumulator::<f64>::default(), Accumulator::<f64>::default());
+        for k in 0..100u32 {
+            if k % 32 == 0 {
+                h2.settle();
+            }
+            let c = 1.0 + f64::from(k / 32);
+            let v = [c, 2.0 * c, f64::from(k) * 0.1, -f64::from(k)];
+            p2.add(v, 0);
+            h2.add_held::<2>(v, 0);
+        }
+        let (a, b) = (p2.mean(), h2.mean());
+        for i in 0..4 {
+            assert!(
+                (a[i] - b[i]).abs() <= 1e-12 * a[i].abs().max(1.0),
+                "entry {i}: {} vs {}",
+                a[i],
+                b[i]
+            );
+        }
     }
 }

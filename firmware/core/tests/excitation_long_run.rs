@@ -127,8 +127,14 @@ fn excitation_follows_the_requested_tones_over_1e8_samples() {
          {worst_modulus:.2e} (bound {phasor_tol:.2e}, for ever: every {RESYNC} samples the \
          phasors start again from the exact integer phase)"
     );
-    assert!(worst_angle <= phasor_tol, "phasor angle error {worst_angle} rad > {phasor_tol}");
-    assert!(worst_modulus <= phasor_tol, "phasor modulus error {worst_modulus} > {phasor_tol}");
+    assert!(
+        worst_angle <= phasor_tol,
+        "phasor angle error {worst_angle} rad > {phasor_tol}"
+    );
+    assert!(
+        worst_modulus <= phasor_tol,
+        "phasor modulus error {worst_modulus} > {phasor_tol}"
+    );
     assert!(worst <= tol, "worst error {worst} nm > {tol} nm");
     // A sample error of at most `tol` moves a lock-in's amplitude by at most 2·tol and its
     // phase by at most 2·tol/a (its in-phase and quadrature sums average the error).
