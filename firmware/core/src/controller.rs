@@ -396,11 +396,21 @@ const BITS: FaultBits = FaultBits {
 
 /// Sums for a read-out average of [c, k, h, depth]. Values are accumulated as deviations from
 /// the first sample so that f32 keeps its precision over tens of thousands of samples.
+///
+/// With the block estimator θ̂ changes only when a block's result is adopted, so its entries
+/// (the first `L` of a sample, [`Self::add_held`]) need no per-sample sums: the loop counts
+/// the samples that saw the same θ̂ (`pending`) and [`Self::settle`] adds them as
+/// `count·(θ̂ − base)` once per block, before θ̂ changes. [`Self::add`] is the per-sample form,
+/// for the per-sample law (blocks of one), where θ̂ changes every sample.
 #[derive(Clone, Copy, Debug, Default)]
 struct Accumulator<T> {
     base: [T; 4],
     sum: [T; 4],
     n: u32,
+    /// Samples since the θ̂ entries were last added to `sum`, all with the values `held`.
+    pending: u32,
+    /// The θ̂ entries of the pending samples (the others equal `base`, so they add 0).
+    held: [T; 3],
     flags: u32,
 }
 
@@ -417,12 +427,46 @@ impl<T: crate::Real> Accumulator<T> {
         self.flags |= flags;
     }
 
+    /// One sample whose first `L` entries are θ̂ as it stands until the next [`Self::settle`].
+    #[inline(always)]
+    fn add_held<const L: usize>(&mut self, v: [T; 4], flags: u32) {
+        if self.pending == 0 {
+            if self.n == 0 {
+                self.base = v;
+                self.held = [v[0], v[1], v[2]];
+            }
+            for (h, x) in self.held.iter_mut().zip(v).take(L) {
+                *h = x;
+            }
+        }
+        for i in L.min(4)..4 {
+            self.sum[i] += v[i] - self.base[i];
+        }
+        self.pending += 1;
+        self.n += 1;
+        self.flags |= flags;
+    }
+
+    /// The pending samples' θ̂ entries into the sums: before θ̂ changes.
+    #[inline(always)]
+    fn settle(&mut self) {
+        if self.pending > 0 {
+            let count = T::from_i32(self.pending as i32);
+            for i in 0..3 {
+                self.sum[i] += (self.held[i] - self.base[i]) * count;
+            }
+            self.pending = 0;
+        }
+    }
+
     fn mean(&self) -> [T; 4] {
-        let mut m = self.base;
-        if self.n > 0 {
-            let inv = T::ONE / T::from_i32(self.n as i32);
+        let mut acc = *self;
+        acc.settle();
+        let mut m = acc.base;
+        if acc.n > 0 {
+            let inv = T::ONE / T::from_i32(acc.n as i32);
             for i in 0..4 {
-                m[i] += self.sum[i] * inv;
+                m[i] += acc.sum[i] * inv;
             }
         }
         m
@@ -895,7 +939,7 @@ impl<T: SineTable> Controller<T> {
             Some(Mode::Sve) | None if p.sve.regressor == SveRegressor::Decoupled => {
                 let th = self.theta2;
                 let force = p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
-                (th[0], th[1], (self.reg.z().x + force / th[1]))
+                (th[0], th[1], (self.reg.z_x() + force / th[1]))
             }
             _ => {
                 let th = self.theta3;
@@ -943,6 +987,9 @@ impl<T: SineTable> Controller<T> {
         if r.epoch != self.epoch {
             return;
         }
+        // The read-out sums take the samples of the θ̂ about to be replaced.
+        self.dive.acc.settle();
+        self.sve.acc.settle();
         if r.target.two() {
             self.theta2 = [r.theta[0], r.theta[1]];
         } else {
@@ -1099,6 +1146,8 @@ impl<T: SineTable> Controller<T> {
 
     /// A new tap or scan: the estimator at θ̂₀ with P₀, the divergence watch restarted.
     fn restart_estimator(&mut self, target: Target, theta0: [T; 3]) {
+        self.dive.acc.settle();
+        self.sve.acc.settle();
         self.task.restart(target, theta0);
         self.task.restart_watch();
         self.theta2 = self.task.estimator2().theta();
@@ -1193,7 +1242,7 @@ impl<T: SineTable> Controller<T> {
             }
             Phase::Indent => {
                 *st |= status::CONTACT;
-                let depth = self.dive.h - self.reg.z().x;
+                let depth = self.dive.h - self.reg.z_x();
                 if self.dive_force_limit(d, &mut u, st) {
                     // Retracted.
                 } else if depth >= self.p.dive.indent {
@@ -1239,9 +1288,12 @@ impl<T: SineTable> Controller<T> {
                     *st |= f;
                     if t >= self.dive.readout_from {
                         // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
-                        self.dive
-                            .acc
-                            .add([th[0], th[1], th[2], h - self.reg.z().x], f);
+                        let v = [th[0], th[1], th[2], h - self.reg.z_x()];
+                        if block {
+                            self.dive.acc.add_held::<3>(v, f);
+                        } else {
+                            self.dive.acc.add(v, f);
+                        }
                         *st |= status::READOUT;
                     }
                 }
@@ -1486,7 +1538,7 @@ impl<T: SineTable> Controller<T> {
                         }
                         let th = self.theta2;
                         let depth = force / th[1];
-                        ([th[0], th[1], T::ZERO], self.reg.z().x + depth, depth)
+                        ([th[0], th[1], T::ZERO], self.reg.z_x() + depth, depth)
                     }
                     SveRegressor::Paper => {
                         if input_ok {
@@ -1566,7 +1618,7 @@ impl<T: SineTable> Controller<T> {
             SveRegressor::Decoupled => (th[0], th[1]),
             SveRegressor::Paper => (th3[0], th3[1]),
         };
-        let h = self.reg.z().x;
+        let h = self.reg.z_x();
         if self.sve_sequence(t, [c, k, h, T::ZERO], status::CONTACT_LOST) {
             *st |= status::READOUT;
         }
@@ -1589,7 +1641,11 @@ impl<T: SineTable> Controller<T> {
                     self.p.sve.x1 + (self.p.sve.x0 - self.p.sve.x1) * f
                 };
                 self.set_x_same_y(x);
-                self.sve.acc.add(v, flags);
+                if self.p.dec_sve > 1 {
+                    self.sve.acc.add_held::<2>(v, flags);
+                } else {
+                    self.sve.acc.add(v, flags);
+                }
                 read = true;
                 self.sve.x_acc += self.x - self.p.sve.x0;
                 if t >= self.sve.next_boundary {
@@ -1672,5 +1728,73 @@ impl<T: SineTable> Controller<T> {
         self.record = Some(Record::Pixel(rec));
         s.acc.clear();
         s.x_acc = T::ZERO;
+    }
+}
+
+#[cfg(test)]
+mod accumulator_tests {
+    use super::Accumulator;
+
+    /// The per-block sums of θ̂ give the mean of the per-sample sums: θ̂ held over blocks of
+    /// uneven length (a restart mid-block included), the other entries per sample. In f64 the
+    /// two differ only by rounding (n·x against n additions of x).
+    #[test]
+    fn held_sums_equal_per_sample_sums() {
+        let mut per_sample = Accumulator::<f64>::default();
+        let mut held = Accumulator::<f64>::default();
+        let mut theta = [3.0, 50.0, -7.0];
+        let mut k = 0u32;
+        for block in [1u32, 32, 17, 32, 5, 32, 32, 9] {
+            for _ in 0..block {
+                let x = 0.37 * f64::from(k) - 1e-3 * f64::from(k * k % 97);
+                let v = [theta[0], theta[1], theta[2], x];
+                per_sample.add(v, k & 3);
+                held.add_held::<3>(v, k & 3);
+                k += 1;
+            }
+            // A block's result adopted: θ̂ moves; the held sums take their samples first.
+            held.settle();
+            theta = [
+                theta[0] * 1.01 + 0.2,
+                theta[1] - 0.7,
+                theta[2] + 0.05 * f64::from(block),
+            ];
+        }
+        // The last stretch without a settle: the mean must take it too.
+        for _ in 0..13 {
+            let v = [theta[0], theta[1], theta[2], 2.5];
+            per_sample.add(v, 0);
+            held.add_held::<3>(v, 0);
+        }
+        let (a, b) = (per_sample.mean(), held.mean());
+        assert_eq!((per_sample.n, per_sample.flags), (held.n, held.flags));
+        for i in 0..4 {
+            assert!(
+                (a[i] - b[i]).abs() <= 1e-12 * a[i].abs().max(1.0),
+                "entry {i}: {} vs {}",
+                a[i],
+                b[i]
+            );
+        }
+        // An SVE-style accumulator (two held entries): the third and fourth per sample.
+        let (mut p2, mut h2) = (Accumulator::<f64>::default(), Accumulator::<f64>::default());
+        for k in 0..100u32 {
+            if k % 32 == 0 {
+                h2.settle();
+            }
+            let c = 1.0 + f64::from(k / 32);
+            let v = [c, 2.0 * c, f64::from(k) * 0.1, -f64::from(k)];
+            p2.add(v, 0);
+            h2.add_held::<2>(v, 0);
+        }
+        let (a, b) = (p2.mean(), h2.mean());
+        for i in 0..4 {
+            assert!(
+                (a[i] - b[i]).abs() <= 1e-12 * a[i].abs().max(1.0),
+                "entry {i}: {} vs {}",
+                a[i],
+                b[i]
+            );
+        }
     }
 }

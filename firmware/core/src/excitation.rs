@@ -1,18 +1,33 @@
 //! The two-tone excitation (29): `U_exc = a₁·sin(2πf₁t) + a₂·sin(2πf₂t)`, without calling a sine.
 //!
-//! Each tone is a direct digital synthesiser: a 32-bit phase accumulator advanced by an integer
-//! increment per sample, and a 256-entry sine table with a second-order correction. The phase is
-//! an integer, so it never drifts: after 10⁸ or 10¹² samples it is exactly `n·Δ mod 2³²`. The
-//! output error is that of the table step alone, independent of how long it has run:
-//! with `a` the table angle and `b < 2π/256` the remainder, `sin(a + b) = sin a·cos b +
-//! cos a·sin b` with `cos b ≈ 1 − b²/2`, `sin b ≈ b(1 − b²/6)`, whose truncation error
-//! `b⁴/24 < 1.5·10⁻⁸` is below f32 rounding. A recursive oscillator (a rotation per sample)
-//! would cost about the same but accumulates phase error from the rounded rotation angle
-//! (≈ 0.75 rad after 10⁸ samples at 20 kHz in f32) and needs amplitude renormalisation.
+//! Each tone is a unit phasor `(cos θ, sin θ)` rotated by a complex multiplication per sample
+//! (four products and two sums, against ~17 operations and two table loads for a corrected
+//! table read), and set again from an exact integer phase every [`RESYNC`] samples. (In
+//! floating point; the fixed-point type reads the table at every sample, see
+//! [`SineTable::PHASOR`].)
 //!
-//! The price is that a frequency is a multiple of `f_s/2³²` (0.23 mHz at 1 MHz): the
-//! synthesised frequency is reported by [`Tone::frequency`], and it is the one the phase is
-//! exact for.
+//! **The phase is exact, and the phasor never strays far from it.** A 32-bit phase accumulator
+//! advanced by an integer increment per sample is what defines the tone: after 10⁸ or 10¹²
+//! samples it is exactly `n·Δ mod 2³²`. The accumulator is advanced once per chunk of
+//! [`RESYNC`] samples (by `RESYNC·Δ`, exact in integers), and at each chunk's first sample
+//! the phasor is set from it by the sine table below (a 256-entry table with a second-order
+//! correction: `sin(a + b) = sin a·cos b + cos a·sin b` with `cos b ≈ 1 − b²/2`,
+//! `sin b ≈ b(1 − b²/6)`, truncation `b⁴/24 < 1.5·10⁻⁸`, below f32 rounding). In between, the
+//! phasor is rotated by the rounded `(cos Δ, sin Δ)`: each rotation adds at most the rounding
+//! of that constant (≤ 2⁻²⁴·√2 in angle and in modulus) and of its own products and sums
+//! (≤ 2·2⁻²⁴ per component), so after the [`RESYNC`]` − 1` rotations of a chunk the phasor is
+//! off by at most `31·(√2 + 2√2)·2⁻²⁴ + 3·2⁻²⁴ ≈ 8·10⁻⁶` of its unit length, in phase (rad)
+//! and in amplitude alike, and the next chunk starts exact again: the error is bounded
+//! for ever, however long the excitation runs, where a free-running oscillator would drift
+//! (≈ 0.75 rad after 10⁸ samples at 20 kHz in f32) and need its amplitude renormalised.
+//! In Q31.32 the same bound is ~10⁻⁸ (its rounding is 2⁻³³). Why that is enough: the
+//! identification uses U as applied (the DAC's value, whatever the tones were), so the tones
+//! only have to be persistently exciting and at their frequencies; and 8·10⁻⁶ of the paper's
+//! 1 µm DIVE tone is 8 pm, a tenth of the U DAC's step (6 µm/2¹⁶ = 92 pm), which rounds it.
+//!
+//! The price of the integer phase is that a frequency is a multiple of `f_s/2³²` (0.23 mHz at
+//! 1 MHz): the synthesised frequency is reported by [`Tone::frequency`], and it is the one the
+//! phase is exact for.
 //!
 //! An envelope in [0, 1] ramps the excitation in and out (a DIVE tap switches it on only in
 //! contact: a base oscillation of 1 µm near resonance would swing a free cantilever by Q·1 µm).
@@ -75,6 +90,14 @@ pub static SIN_TABLE_F32: [f32; TABLE_SIZE] = table_f32();
 
 /// A number type with a sine table.
 pub trait SineTable: Real + 'static {
+    /// Tones from rotating phasors (true), or from the table at every sample (false).
+    /// Floating point: the rotation's four products are cheaper than a corrected table read.
+    /// Fixed point (Q31.32) keeps the table: there the table read's products are by
+    /// constants or by operands the compiler knows to be small (their partial products fold
+    /// away), while the rotation's are general 64 × 64-bit products; measured on the
+    /// Cortex-M3 (`cargo xtask bench --m3 --fixed`), the phasors cost ~190 instructions more
+    /// per sample.
+    const PHASOR: bool = true;
     /// sin(2π·i/TABLE_LEN) for i in 0..TABLE_SIZE.
     fn sine_table() -> &'static [Self; TABLE_SIZE];
 }
@@ -111,6 +134,12 @@ pub fn sine<T: SineTable>(phase: u32) -> T {
     s * cos_b + c * sin_b
 }
 
+/// Samples per chunk: the phasors are set from the integer phases at every chunk's first
+/// sample and rotated for the other `RESYNC − 1`. 32: the setting (four table reads, ~100
+/// instructions) costs ~3 per sample, and the rotation error stays at ~8·10⁻⁶ (module docs);
+/// the error grows linearly with the chunk, the setting's share falls as its inverse.
+pub const RESYNC: u32 = 32;
+
 /// One tone of the synthesiser.
 #[derive(Clone, Copy, Debug)]
 pub struct Tone<T> {
@@ -118,6 +147,9 @@ pub struct Tone<T> {
     pub increment: u32,
     /// Amplitude (internal length unit).
     pub amplitude: T,
+    /// `(cos Δ, sin Δ)` of the increment's angle `Δ = 2π·increment/2³²` (computed in f64,
+    /// rounded once): the phasor's rotation per sample.
+    pub rotation: [T; 2],
 }
 
 impl<T: Real> Tone<T> {
@@ -125,9 +157,14 @@ impl<T: Real> Tone<T> {
     pub fn new(frequency_hz: f64, sample_rate_hz: f64, amplitude: T) -> Self {
         let inc = frequency_hz / sample_rate_hz * 4_294_967_296.0;
         let inc = inc.clamp(0.0, 4_294_967_295.0);
+        let increment = (inc + 0.5) as u32;
+        // The angle of the integer increment, not of the request: the rotation then follows
+        // the exact phase the chunks are set from.
+        let delta = 2.0 * core::f64::consts::PI * increment as f64 / 4_294_967_296.0;
         Self {
-            increment: (inc + 0.5) as u32,
+            increment,
             amplitude,
+            rotation: [T::from_f64(libm::cos(delta)), T::from_f64(libm::sin(delta))],
         }
     }
 
@@ -148,11 +185,29 @@ pub struct ExcitationParams<T> {
     pub ramp_step: T,
 }
 
+/// `(c, s)·(rc, rs)`: the unit phasor turned by the rotation.
+#[inline(always)]
+fn rotate<T: Real>(v: [T; 2], r: [T; 2]) -> [T; 2] {
+    [v[0] * r[0] - v[1] * r[1], v[1] * r[0] + v[0] * r[1]]
+}
+
+/// `(cos, sin)` of the integer phase `phase` (2³² = one turn), from the table.
+#[inline(always)]
+fn phasor<T: SineTable>(phase: u32) -> [T; 2] {
+    [sine::<T>(phase.wrapping_add(1 << 30)), sine::<T>(phase)]
+}
+
 /// State of the two-tone excitation.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Excitation<T> {
+    /// Unit phasors `(cos, sin)` of the two tones at the latest sample.
+    ph1: [T; 2],
+    ph2: [T; 2],
+    /// Integer phases of the current chunk's last sample (of the latest sample when `left` is 0).
     phase1: u32,
     phase2: u32,
+    /// Rotations left in the current chunk; 0: the next sample starts a chunk.
+    left: u32,
     envelope: T,
     on: bool,
 }
@@ -180,21 +235,65 @@ impl<T: SineTable> Excitation<T> {
         self.envelope >= T::ONE
     }
 
-    /// Phases (for tests and telemetry).
-    pub fn phases(&self) -> (u32, u32) {
-        (self.phase1, self.phase2)
+    /// Integer phases of the latest sample, for the tones of `p` (for tests and telemetry).
+    pub fn phases(&self, p: &ExcitationParams<T>) -> (u32, u32) {
+        (
+            self.phase1
+                .wrapping_sub(self.left.wrapping_mul(p.tone1.increment)),
+            self.phase2
+                .wrapping_sub(self.left.wrapping_mul(p.tone2.increment)),
+        )
+    }
+
+    /// Unit phasors `(cos, sin)` of the two tones at the latest sample (for tests; zero for
+    /// a type that reads the table at every sample, `SineTable::PHASOR` false).
+    pub fn phasors(&self) -> ([T; 2], [T; 2]) {
+        (self.ph1, self.ph2)
+    }
+
+    /// A chunk's first sample: both phasors set from the exact integer phases. Out of line:
+    /// once per [`RESYNC`] samples, and its table reads would crowd the per-sample path.
+    #[inline(never)]
+    fn start_chunk(&mut self, p: &ExcitationParams<T>) {
+        // The phases of this sample; then those of the chunk's last, RESYNC − 1 samples on.
+        let (i1, i2) = (p.tone1.increment, p.tone2.increment);
+        let first1 = self.phase1.wrapping_add(i1);
+        let first2 = self.phase2.wrapping_add(i2);
+        self.ph1 = phasor(first1);
+        self.ph2 = phasor(first2);
+        self.phase1 = first1.wrapping_add((RESYNC - 1).wrapping_mul(i1));
+        self.phase2 = first2.wrapping_add((RESYNC - 1).wrapping_mul(i2));
+        self.left = RESYNC - 1;
+    }
+
+    /// Both tones advanced one sample: `a₁·sin θ₁ + a₂·sin θ₂`.
+    #[inline(always)]
+    fn tones(&mut self, p: &ExcitationParams<T>) -> T {
+        if !T::PHASOR {
+            // The table at every sample (`left` stays 0: the phases are the latest sample's).
+            self.phase1 = self.phase1.wrapping_add(p.tone1.increment);
+            self.phase2 = self.phase2.wrapping_add(p.tone2.increment);
+            return p.tone1.amplitude * sine::<T>(self.phase1)
+                + p.tone2.amplitude * sine::<T>(self.phase2);
+        }
+        if self.left == 0 {
+            self.start_chunk(p);
+        } else {
+            self.left -= 1;
+            self.ph1 = rotate(self.ph1, p.tone1.rotation);
+            self.ph2 = rotate(self.ph2, p.tone2.rotation);
+        }
+        p.tone1.amplitude * self.ph1[1] + p.tone2.amplitude * self.ph2[1]
     }
 
     /// The next excitation sample, and advance.
     #[inline(always)]
     pub fn next(&mut self, p: &ExcitationParams<T>) -> T {
         // The phases run continuously, on or off, so the tones are coherent from tap to tap.
-        self.phase1 = self.phase1.wrapping_add(p.tone1.increment);
-        self.phase2 = self.phase2.wrapping_add(p.tone2.increment);
+        let s = self.tones(p);
         if self.on && self.envelope == T::ONE {
             // Fully on: the ramp below would leave the envelope at 1, and 1·s = s.
-            return p.tone1.amplitude * sine::<T>(self.phase1)
-                + p.tone2.amplitude * sine::<T>(self.phase2);
+            return s;
         }
         let env = if self.on {
             self.envelope + p.ramp_step
@@ -203,8 +302,6 @@ impl<T: SineTable> Excitation<T> {
         };
         self.envelope = env.clamp_to(T::ZERO, T::ONE);
         if self.envelope > T::ZERO {
-            let s = p.tone1.amplitude * sine::<T>(self.phase1)
-                + p.tone2.amplitude * sine::<T>(self.phase2);
             self.envelope * s
         } else {
             T::ZERO

@@ -490,7 +490,7 @@ impl<T: Real> Observer<T> {
                         bed = self.z0 + th[2] / th[1];
                     }
                 }
-                depth = self.h - self.reg.z().x;
+                depth = self.h - self.reg.z_x();
             }
             Estimating::Sve => {
                 let w = self.reg.w(&p.reg);
@@ -509,13 +509,13 @@ impl<T: Real> Observer<T> {
                 // k̂ ≥ k_min > 0 by projection.
                 let force = p.reg.stiffness * (self.d_free - self.contact.lowpassed());
                 depth = force / t2[1];
-                bed = self.reg.z().x + depth;
+                bed = self.reg.z_x() + depth;
             }
         }
         let to_m = p.to_m;
         Observation {
             z_m: z * to_m,
-            z_filtered_m: self.reg.z().x * to_m,
+            z_filtered_m: self.reg.z_x() * to_m,
             d_lowpassed_m: self.contact.lowpassed() * to_m,
             contact: match state {
                 ContactState::Armed => ContactState::Armed,

@@ -167,8 +167,16 @@ impl<T: Real> Prefilter<T> {
     /// run-time test of the hold): the new state, and `s²·x/Λ` of the previous sample.
     #[inline(always)]
     pub fn update_smooth(&mut self, c: &PrefilterCoeffs<T>, x: T) -> T {
+        self.advance_smooth(c, x);
+        self.ddx_smooth(c)
+    }
+
+    /// The state of [`Self::update_smooth`] alone: `s²·x/Λ` is left to
+    /// [`Self::ddx_smooth`], for the samples that need it (the regressor's w, only while
+    /// estimating), with the same operations on the same values.
+    #[inline(always)]
+    pub fn advance_smooth(&mut self, c: &PrefilterCoeffs<T>, x: T) {
         let end = self.x1 - c.curvature * ((x - self.x1) - (self.x1 - self.x2));
-        let sample = self.x1;
         let y = c.phi[0][0] * self.y
             + c.phi[0][1] * self.dy
             + c.g_prev[0] * self.held
@@ -182,7 +190,13 @@ impl<T: Real> Prefilter<T> {
         self.held = end;
         self.x2 = self.x1;
         self.x1 = x;
-        (sample - y - c.two_lambda * dy) * c.inv_lambda2
+    }
+
+    /// `s²·x/Λ` at the instant of the current state of a [`Hold::Smooth`] filter, i.e. of the
+    /// sample before the latest (held in `x2` since [`Self::advance_smooth`]).
+    #[inline(always)]
+    pub fn ddx_smooth(&self, c: &PrefilterCoeffs<T>) -> T {
+        (self.x2 - self.y - c.two_lambda * self.dy) * c.inv_lambda2
     }
 
     /// Take the new sample `x` of a staircase ([`Hold::Zero`] coefficients) and return `x/Λ` and

@@ -46,13 +46,12 @@ impl<T: Real> RegressorParams<T> {
     }
 }
 
-/// The two prefilters and their latest outputs (the filters' states are their x/Λ and
-/// s·x/Λ; only s²·Z/Λ is kept besides).
+/// The two prefilters (their states are their x/Λ and s·x/Λ; s²·Z/Λ is formed from the Z
+/// filter's state when w needs it, not every sample).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Regressor<T> {
     zf: Prefilter<T>,
     uf: Prefilter<T>,
-    z_ddx: T,
     u_prev: T,
 }
 
@@ -62,7 +61,6 @@ impl<T: Real> Regressor<T> {
         Self {
             zf: Prefilter::at_rest(z0),
             uf: Prefilter::at_rest(u0),
-            z_ddx: T::ZERO,
             u_prev: u0,
         }
     }
@@ -71,20 +69,32 @@ impl<T: Real> Regressor<T> {
     /// output one step ago), `z = u − D` the tip position sampled now.
     #[inline(always)]
     pub fn update(&mut self, p: &RegressorParams<T>, u: T, z: T) {
-        self.z_ddx = self.zf.update_smooth(&p.z, z);
+        self.zf.advance_smooth(&p.z, z);
         self.uf.update_held(&p.u, self.u_prev);
         self.u_prev = u;
     }
 
-    /// Z/Λ, s·Z/Λ and s²·Z/Λ.
+    /// Z/Λ, s·Z/Λ and s²·Z/Λ (the last formed here; unused, inlining drops it).
     #[inline(always)]
-    pub fn z(&self) -> Filtered<T> {
+    pub fn z(&self, p: &RegressorParams<T>) -> Filtered<T> {
         let (x, dx) = self.zf.state();
         Filtered {
             x,
             dx,
-            ddx: self.z_ddx,
+            ddx: self.zf.ddx_smooth(&p.z),
         }
+    }
+
+    /// Z/Λ alone.
+    #[inline(always)]
+    pub fn z_x(&self) -> T {
+        self.zf.state().0
+    }
+
+    /// s·Z/Λ alone.
+    #[inline(always)]
+    pub fn z_dx(&self) -> T {
+        self.zf.state().1
     }
 
     /// U/Λ and s·U/Λ (the U filter does not form s²·U/Λ: nothing needs it; `ddx` is 0).
@@ -101,7 +111,7 @@ impl<T: Real> Regressor<T> {
     /// w = (M s² + C s + K)·Z/Λ − (C s + K)·U/Λ.
     #[inline(always)]
     pub fn w(&self, p: &RegressorParams<T>) -> T {
-        let z = self.z();
+        let z = self.z(p);
         let u = self.u();
         p.mass * z.ddx + p.damping * (z.dx - u.dx) + p.stiffness * (z.x - u.x)
     }
@@ -109,14 +119,12 @@ impl<T: Real> Regressor<T> {
     /// DIVE (13): [s·δ/Λ, δ/Λ] with δ = h − Z.
     #[inline(always)]
     pub fn phi_dive(&self, h: T) -> [T; 2] {
-        let z = self.z();
-        [-z.dx, h - z.x]
+        [-self.z_dx(), h - self.z_x()]
     }
 
     /// SVE (16) with a fixed reference z₀: [−s·Z/Λ, z₀ − Z/Λ, 1].
     #[inline(always)]
     pub fn phi_sve(&self, z0: T) -> [T; 3] {
-        let z = self.z();
-        [-z.dx, z0 - z.x, T::ONE]
+        [-self.z_dx(), z0 - self.z_x(), T::ONE]
     }
 }

@@ -7,9 +7,10 @@
 //! |Δf| ≤ f_s/2³³, and by nothing else. Checked (a) sample by sample against the f64 tones
 //! at the nearest representable frequency, to the f32 resolution of the output; (b) by
 //! lock-in on the requested frequencies at the start and after 10⁸ samples: amplitude
-//! unchanged, phase moved by 2π·Δf·Δt and no more.
+//! unchanged, phase moved by 2π·Δf·Δt and no more; (c) the rotating phasors themselves,
+//! sample by sample: angle and modulus within the chunk bound of `visco_core::excitation`.
 
-use visco_core::excitation::{Excitation, ExcitationParams, Tone};
+use visco_core::excitation::{Excitation, ExcitationParams, Tone, RESYNC};
 
 const N: u64 = 100_000_000;
 const FS: f64 = 1e6;
@@ -39,16 +40,26 @@ fn excitation_follows_the_requested_tones_over_1e8_samples() {
     assert!(df1.abs() <= QUANTUM / 2.0 && df2.abs() <= QUANTUM / 2.0);
     let two_pi = 2.0 * std::f64::consts::PI;
     let (aa1, aa2) = (f64::from(a1), f64::from(a2));
-    // f32 resolution of the output: six roundings of at most 2⁻²⁴ of the sum's magnitude
-    // (the table entry, its two corrected products and their sum, the amplitude product,
-    // the sum of the tones); the table's truncation (1.5·10⁻⁸) and the f64 reference's
-    // phase (10⁻⁹ rad) are below it.
-    let tol = 6.0 * f64::from(f32::EPSILON) / 2.0 * (aa1 + aa2);
+    // The phasor's bound (see `visco_core::excitation`), in units of the f32 rounding
+    // u = 2⁻²⁴: set at a chunk's first sample from the table (sin and cos each within four
+    // roundings: the entry, the two corrected products, their sum: 4√2·u as a vector), then
+    // RESYNC − 1 rotations, each off by the rounding of the rotation constant (u) and of its
+    // two products and sum per component (2u each, 2√2·u as a vector, since
+    // |c·rc| + |s·rs| ≤ 1 for unit vectors). The table's truncation (1.5·10⁻⁸) and the f64
+    // reference's phase (10⁻⁹ rad) are below it.
+    let u = f64::from(f32::EPSILON) / 2.0;
+    let rotations = f64::from(RESYNC - 1);
+    let phasor_tol = u * (4.0 * 2f64.sqrt() + rotations * (1.0 + 2.0 * 2f64.sqrt()));
+    // The output: each tone's phasor error times its amplitude, and three roundings of the
+    // sum's magnitude (the two amplitude products, the sum of the tones).
+    let tol = (phasor_tol + 3.0 * u) * (aa1 + aa2);
 
     let mut exc = Excitation::<f32>::default();
     exc.set_on(true);
     let mut worst = 0.0f64;
     let mut worst_at = 0;
+    // (c): the worst angle (rad) and modulus error of either phasor.
+    let (mut worst_angle, mut worst_modulus) = (0.0f64, 0.0f64);
     let lock = 1_000_000u64; // 1 s windows: whole periods of both requested tones
     let mut start = [0.0f64; 4];
     let mut end = [0.0f64; 4];
@@ -57,7 +68,17 @@ fn excitation_follows_the_requested_tones_over_1e8_samples() {
         let t = (n + 1) as f64 / FS;
         let (x1, x2) = (phase_at(f1, n), phase_at(f2, n));
         // (a) The tones at the representable frequencies: the requested phase plus 2π·Δf·t.
-        let exact = aa1 * (x1 + two_pi * df1 * t).sin() + aa2 * (x2 + two_pi * df2 * t).sin();
+        let (th1, th2) = (x1 + two_pi * df1 * t, x2 + two_pi * df2 * t);
+        let exact = aa1 * th1.sin() + aa2 * th2.sin();
+        // (c) The phasors against the exact angles: the cross product with the exact unit
+        // vector is the sine of the angle error, the dot product the modulus.
+        let (ph1, ph2) = exc.phasors();
+        for (ph, th) in [(ph1, th1), (ph2, th2)] {
+            let (c, s) = (f64::from(ph[0]), f64::from(ph[1]));
+            let (sin_t, cos_t) = th.sin_cos();
+            worst_angle = worst_angle.max((s * cos_t - c * sin_t).abs());
+            worst_modulus = worst_modulus.max((c * cos_t + s * sin_t - 1.0).abs());
+        }
         let err = (v - exact).abs();
         if err > worst {
             worst = err;
@@ -100,6 +121,19 @@ fn excitation_follows_the_requested_tones_over_1e8_samples() {
         e2.0,
         s2.1,
         e2.1
+    );
+    println!(
+        "phasors over {N} samples: worst angle error {worst_angle:.2e} rad, worst modulus error \
+         {worst_modulus:.2e} (bound {phasor_tol:.2e}, for ever: every {RESYNC} samples the \
+         phasors start again from the exact integer phase)"
+    );
+    assert!(
+        worst_angle <= phasor_tol,
+        "phasor angle error {worst_angle} rad > {phasor_tol}"
+    );
+    assert!(
+        worst_modulus <= phasor_tol,
+        "phasor modulus error {worst_modulus} > {phasor_tol}"
     );
     assert!(worst <= tol, "worst error {worst} nm > {tol} nm");
     // A sample error of at most `tol` moves a lock-in's amplitude by at most 2·tol and its

@@ -165,8 +165,8 @@ impl PhiProbe {
             self.started = true;
         }
         self.reg.update(&self.params, u, z);
-        let f = self.reg.z();
-        (f.dx, self.hp.update(self.a, f.x))
+        let (x, dx) = (self.reg.z_x(), self.reg.z_dx());
+        (dx, self.hp.update(self.a, x))
     }
 }
 
