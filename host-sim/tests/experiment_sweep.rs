@@ -26,14 +26,21 @@ fn sve_sweep_points_and_the_fastest_meeting_the_goal() {
     for p in &pts {
         assert_eq!(p.failed, 0, "{} s lines lost pixels", p.period_s);
         let nominal = 1000.0 / (20.0 * p.period_s);
-        assert!((p.pixels_per_s / nominal - 1.0).abs() < 1e-9, "{} s", p.period_s);
+        assert!(
+            (p.pixels_per_s / nominal - 1.0).abs() < 1e-9,
+            "{} s",
+            p.period_s
+        );
     }
     near(&pts[0], [0.72, 1.14, 1.26], "2 s");
     near(&pts[1], [1.10, 1.46, 1.90], "0.06 s");
     near(&pts[2], [1.06, 1.37, 2.34], "0.05 s");
     assert!(sweep::meets_goal(&pts[0]) && sweep::meets_goal(&pts[1]));
     assert!(!sweep::meets_goal(&pts[2]));
-    assert_eq!(sweep::fastest_meeting_goal(&pts).map(|p| p.period_s), Some(0.06));
+    assert_eq!(
+        sweep::fastest_meeting_goal(&pts).map(|p| p.period_s),
+        Some(0.06)
+    );
 }
 
 #[test]
@@ -43,6 +50,13 @@ fn dive_sweep_breaks_down_below_20_ms_taps() {
     assert!(sweep::meets_goal(&pts[0]));
     // 15 ms: the approach reaches the sample before the retract's ringing has died (h RMS
     // hundreds of %), so the goal is lost by far, not by a hair.
-    assert!(pts[1].rms_error_pct[0] > 50.0, "15 ms: h RMS {}", pts[1].rms_error_pct[0]);
-    assert_eq!(sweep::fastest_meeting_goal(&pts).map(|p| p.period_s), Some(0.02));
+    assert!(
+        pts[1].rms_error_pct[0] > 50.0,
+        "15 ms: h RMS {}",
+        pts[1].rms_error_pct[0]
+    );
+    assert_eq!(
+        sweep::fastest_meeting_goal(&pts).map(|p| p.period_s),
+        Some(0.02)
+    );
 }
