@@ -538,26 +538,50 @@ mod tests {
         assert!(!v.is_valid(&broken));
     }
 
-    /// Every number as an f64 (`123` and `123.0` are the same JSON number).
-    fn as_f64s(v: serde_json::Value) -> serde_json::Value {
-        use serde_json::Value;
-        match v {
-            Value::Number(n) => Value::from(n.as_f64().unwrap()),
-            Value::Array(a) => Value::Array(a.into_iter().map(as_f64s).collect()),
-            Value::Object(o) => {
-                Value::Object(o.into_iter().map(|(k, v)| (k, as_f64s(v))).collect())
-            }
-            v => v,
-        }
-    }
-
-    /// The typed report says what the hand-written JSON said, number for number.
+    /// The numbers keep the precision the hand-written report printed (the typed report was
+    /// checked equal to it on this synthetic report, number for number, in the commit that
+    /// introduced it): whole instructions, 10⁻³ for windows and shares, 10⁻² for the splits,
+    /// 10⁻⁶ for the calibration, 10⁻⁴ % for the fixed-point errors; nothing measured is null.
     #[test]
-    fn typed_report_matches_the_hand_written_one() {
-        let r = synthetic();
-        let legacy: serde_json::Value = serde_json::from_str(&r.json_legacy()).unwrap();
-        let mut typed = serde_json::to_value(r.to_report()).unwrap();
-        typed.as_object_mut().unwrap().remove("schema_version");
-        assert_eq!(as_f64s(typed), as_f64s(legacy));
+    fn numbers_keep_the_stated_precision() {
+        let v = serde_json::to_value(synthetic().to_report()).unwrap();
+        let f = |path: &str| {
+            v.pointer(path)
+                .and_then(serde_json::Value::as_f64)
+                .unwrap_or_else(|| panic!("{path}"))
+        };
+        assert_eq!(f("/schema_version"), 1.0);
+        assert_eq!(f("/instructions_per_step/dive"), 487.0);
+        assert_eq!(f("/instructions_per_step/sve"), 577.0);
+        // 487.4567 × 0.8712345 = 424.6883…, whole instructions.
+        assert_eq!(f("/instructions_per_sample_avg/dive"), 425.0);
+        assert_eq!(f("/instructions_windows/dive_contact/interrupt"), 487.457);
+        assert_eq!(f("/instructions_windows/dive_contact/step"), 446.33);
+        assert_eq!(
+            f("/instructions_windows/dive_contact/estimating_share"),
+            0.123
+        );
+        assert!(v
+            .pointer("/instructions_windows/idle/step")
+            .unwrap()
+            .is_null());
+        assert_eq!(f("/calibration/0/instructions_per_tick"), 16.0);
+        assert_eq!(f("/replay_samples_per_s/dive"), 123_457.0);
+        assert_eq!(f("/lockstep_sve/samples_per_s"), 45_679.0);
+        assert_eq!(f("/flash_bytes"), 52_000.0);
+        // [c, k, h] = [0.0123456, 0.2345678, 0.0000123] % → h 0, c 0.0123, k 0.2346.
+        assert_eq!(f("/fixed_point/error_vs_f64_pct/h"), 0.0);
+        assert_eq!(f("/fixed_point/error_vs_f64_pct/c"), 0.0123);
+        assert_eq!(f("/fixed_point/error_vs_f64_pct/k"), 0.2346);
+        assert_eq!(f("/fixed_point/instructions_per_step/dive"), 1523.0);
+        assert!(v
+            .pointer("/fixed_point/instructions_per_step/sve")
+            .unwrap()
+            .is_null());
+        assert_eq!(f("/fixed_point/table/1/windows/sve_scan"), 321.99);
+        assert!(v
+            .pointer("/fixed_point/table/1/error_vs_f64_pct/dive")
+            .unwrap()
+            .is_null());
     }
 }
