@@ -9,5 +9,6 @@ pub mod output;
 pub mod plant;
 pub mod recording;
 pub mod replay;
+pub mod report;
 pub mod sample;
 pub mod telemetry;

@@ -3,16 +3,18 @@
 //! naming the file, exit status 1, nothing written.
 
 mod identify_support;
+mod report_support;
 
 use std::path::Path;
 
 use identify_support::{listing, s, text, visco};
+use serde_json::Value as Json;
 use visco::experiment::concealed::scenario;
-use visco::identify::Json;
 use visco::plant::effects::EffectKind;
+use visco::report::at;
 
 fn num(j: &Json, path: &str) -> f64 {
-    j.at(path)
+    at(j, path)
         .and_then(|v| v.as_f64())
         .unwrap_or_else(|| panic!("{path} missing or not a number"))
 }
@@ -39,7 +41,7 @@ fn names_a_concealed_adhesion_with_the_contract_report_and_figures() {
     assert!(o.status.success(), "{}{}", text(&o.stdout), text(&o.stderr));
     let stdout = text(&o.stdout);
     assert!(stdout.contains("1. adhesion"), "{stdout}");
-    let j = Json::parse(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let j = report_support::validate_file("diagnose", &json);
     assert_eq!(j.get("recording").and_then(|v| v.as_str()), Some(s(&rec)));
     assert!(j.get("nominal_model").and_then(|v| v.as_str()).is_some());
     let before = num(&j, "rms_before_m");
@@ -81,13 +83,13 @@ fn names_a_concealed_adhesion_with_the_contract_report_and_figures() {
     assert!((fitted / truth - 1.0).abs() < 0.15, "{fitted} vs {truth}");
     assert!(num(first, "rms_after_m") < num(first, "rms_before_m"));
     assert_eq!(
-        first.at("evidence.statistic").and_then(|v| v.as_str()),
+        at(first, "evidence.statistic").and_then(|v| v.as_str()),
         Some("held-out likelihood ratio")
     );
     assert!(num(first, "evidence.value") > 0.0);
     assert!(num(first, "evidence.p_value") < num(first, "evidence.level"));
     // The locate step's tests are there, corrected.
-    let tests = j.at("locate.tests").and_then(|v| v.as_array()).unwrap();
+    let tests = at(&j, "locate.tests").and_then(|v| v.as_array()).unwrap();
     assert!(tests.len() >= 10);
     for f in j.get("figures").and_then(|v| v.as_array()).unwrap() {
         let p = f.as_str().unwrap();
@@ -118,7 +120,7 @@ fn clean_tap_names_nothing() {
         "--no-figures",
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    let j = Json::parse(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let j = report_support::validate_file("diagnose", &json);
     assert_eq!(
         j.get("left_out")
             .and_then(|v| v.as_array())

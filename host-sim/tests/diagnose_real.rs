@@ -14,13 +14,15 @@
 //! AFM Workshop and NT-MDT 0.1 N/m at 1 kHz, NT-MDT 50 nm/nA.
 
 mod identify_support;
+mod report_support;
 
 use identify_support::pins::Pins;
 use identify_support::{real, real_import_options, CC, MAP, NTMDT, SPOT3, SR, WORKSHOP};
+use serde_json::Value as Json;
 use visco::diagnose::{diagnose, Options};
-use visco::identify::Json;
 use visco::plant::effects::EffectKind;
 use visco::recording::import::import_all;
+use visco::report::at;
 
 // ------------------------------------------------------------------ what README.md quotes
 
@@ -163,8 +165,7 @@ fn pin_quoted(name: &str, curve: usize, j: &Json) {
         }
         if let Some((hb, ha)) = qf.hold {
             let (b, a) = phase_rms(f, "dwell");
-            let n_dwell = j
-                .at("locate.phases")
+            let n_dwell = at(j, "locate.phases")
                 .and_then(|v| v.as_array())
                 .unwrap()
                 .iter()
@@ -188,7 +189,7 @@ fn diagnose_file(name: &str) -> Vec<(usize, Json, String)> {
             rec.write(&path).unwrap();
             let json = dir.path().join(format!("curve{curve}.json"));
             let d = diagnose(&path, &Options::new(&json)).unwrap_or_else(|e| panic!("{e}"));
-            let j = Json::parse(&std::fs::read_to_string(&json).unwrap()).unwrap();
+            let j = report_support::validate_file("diagnose", &json);
             // Every figure listed was written.
             for f in j.get("figures").and_then(|v| v.as_array()).unwrap() {
                 assert!(std::path::Path::new(f.as_str().unwrap()).is_file());
@@ -201,7 +202,7 @@ fn diagnose_file(name: &str) -> Vec<(usize, Json, String)> {
 }
 
 fn num(j: &Json, path: &str) -> f64 {
-    j.at(path).and_then(|v| v.as_f64()).unwrap_or(f64::NAN)
+    at(j, path).and_then(|v| v.as_f64()).unwrap_or(f64::NAN)
 }
 
 fn effects(j: &Json) -> Vec<String> {

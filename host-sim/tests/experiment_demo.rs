@@ -2,6 +2,7 @@
 //! phantom, core in the loop at 500 kHz, realistic noise and converters), accuracy asserted
 //! against the goals of the paper reproduction, and every output checked to be readable.
 
+mod report_support;
 use visco::experiment::demo::{self, DemoOptions};
 
 #[test]
@@ -54,8 +55,7 @@ fn reduced_demo_reaches_the_accuracy_goals_and_writes_readable_outputs() {
     );
 
     // Outputs: the report parses, the figures decode, the maps read back.
-    let json: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(dir.path().join("report.json")).unwrap()).unwrap();
+    let json = report_support::validate_file("demo", &dir.path().join("report.json"));
     assert_eq!(json["dive"]["pixels"], 25);
     assert!(json["sve"]["rms_error_pct"]["k"].as_f64().unwrap() <= 4.2);
     assert!(

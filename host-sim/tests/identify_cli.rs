@@ -2,13 +2,16 @@
 //! one error line naming the file (and line), exit status 1 and nothing written.
 
 mod identify_support;
+mod report_support;
 
 use std::path::Path;
 use std::process::{Command, Output};
 
 use identify_support::real;
-use visco::identify::{identify, Json, Options};
+use serde_json::Value as Json;
+use visco::identify::{identify, Options};
 use visco::recording::{Metadata, Mode, Recording};
+use visco::report::at;
 
 fn visco(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_visco"))
@@ -126,12 +129,14 @@ fn identifies_an_imported_jpk_curve_from_the_command_line() {
         stdout.contains("(force-curve)") && stdout.contains("k_a ="),
         "{stdout}"
     );
-    let j = Json::parse(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    assert_eq!(j.at("mode").and_then(Json::as_str), Some("force-curve"));
-    assert_eq!(j.at("element_pitch_m").and_then(Json::as_f64), Some(50e-9));
-    let k_a = j.at("k_a_n_per_m3").and_then(Json::as_f64).unwrap();
-    let k_el = j
-        .at("taps.0.k_element_n_per_m")
+    let j = report_support::validate_file("identify", &json);
+    assert_eq!(at(&j, "mode").and_then(Json::as_str), Some("force-curve"));
+    assert_eq!(
+        at(&j, "element_pitch_m").and_then(Json::as_f64),
+        Some(50e-9)
+    );
+    let k_a = at(&j, "k_a_n_per_m3").and_then(Json::as_f64).unwrap();
+    let k_el = at(&j, "taps.0.k_element_n_per_m")
         .and_then(Json::as_f64)
         .unwrap();
     assert!((k_el / (k_a * 50e-9 * 50e-9) - 1.0).abs() < 1e-12);

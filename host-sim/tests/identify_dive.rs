@@ -15,14 +15,17 @@
 //! raises γ) and corrects the submerged offset by (32): a few % (here within 6 %).
 
 mod identify_support;
+mod report_support;
 
 use std::path::Path;
 use std::sync::OnceLock;
 
 use identify_support::*;
-use visco::identify::{identify, Json, Options, Outcome};
+use serde_json::Value as Json;
+use visco::identify::{identify, Options, Outcome};
 use visco::plant::PlantConfig;
 use visco::recording::Recording;
+use visco::report::at;
 use visco::sample::Sample;
 use visco_core::{Config, TapRecord};
 
@@ -130,19 +133,20 @@ fn offset_regressor_recovers_every_tap_of_a_flat_bed() {
 
     // The report on disk: valid JSON with the promised fields; the series next to it.
     let text = std::fs::read_to_string(dir.path().join("dive.json")).unwrap();
-    let j = Json::parse(&text).unwrap();
-    assert_eq!(j.at("mode").and_then(Json::as_str), Some("dive"));
+    let j = serde_json::from_str::<Json>(&text).unwrap();
+    report_support::validate("identify", &j);
+    assert_eq!(at(&j, "mode").and_then(Json::as_str), Some("dive"));
     for key in ["contact_height_m", "c_ns_per_m", "k_n_per_m"] {
         assert!(
-            j.at(&format!("taps.0.{key}"))
+            at(&j, &format!("taps.0.{key}"))
                 .and_then(Json::as_f64)
                 .is_some(),
             "{key}"
         );
     }
-    assert!(j.at("rms_misfit_m").and_then(Json::as_f64).is_some());
+    assert!(at(&j, "rms_misfit_m").and_then(Json::as_f64).is_some());
     assert_eq!(
-        j.at("per_element.element_pitch_m").and_then(Json::as_f64),
+        at(&j, "per_element.element_pitch_m").and_then(Json::as_f64),
         Some(100e-9)
     );
     for f in ["dive_fit.csv", "dive_fit_detail.csv", "dive.json"] {
@@ -160,9 +164,12 @@ fn without_a_tap_column_the_taps_are_found_by_contact() {
     let report = identify(&path, &Options::new(dir.path().join("r.json"))).unwrap();
     let taps = taps_of(&report.outcome);
     assert_eq!(taps.len(), 4, "one tap per contact");
+    let visco::identify::ModeReport::Dive(d) = &report.json.result else {
+        panic!("not a DIVE report")
+    };
     assert_eq!(
-        report.json.at("segmentation").and_then(Json::as_str),
-        Some("by contact detection (from one release of the sample to the next)")
+        d.segmentation,
+        "by contact detection (from one release of the sample to the next)"
     );
     for t in taps {
         let n = sample.footprint_mean(t.x_m, t.y_m, 300e-9).unwrap().n as f64;

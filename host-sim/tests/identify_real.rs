@@ -7,13 +7,16 @@
 //! 50 nm/nA, 1 kHz. JPK files carry their own spring constant, sensitivity and rates.
 
 mod identify_support;
+mod report_support;
 
 use identify_support::pins::Pins;
 use identify_support::{real, CC, MAP, NTMDT, SPOT3, SR, WORKSHOP};
+use serde_json::Value as Json;
 use visco::identify::force_curve::ForceCurveFit;
-use visco::identify::{identify, Json, Options, Outcome};
+use visco::identify::{identify, Options, Outcome};
 use visco::recording::import::{import_all, ImportOptions};
 use visco::recording::Recording;
+use visco::report::at;
 
 fn options_for(name: &str) -> ImportOptions {
     identify_support::real_import_options(name)
@@ -34,8 +37,15 @@ fn identify_file(name: &str) -> Vec<(Recording, ForceCurveFit, Json)> {
             let Outcome::ForceCurve(fit) = report.outcome else {
                 panic!("{name}: not a force curve")
             };
-            let j = Json::parse(&std::fs::read_to_string(&json).unwrap()).unwrap();
-            assert_eq!(j, report.json, "the file holds the report");
+            let j = report_support::validate_file("identify", &json);
+            assert_eq!(
+                j,
+                serde_json::to_value(&report.json).unwrap(),
+                "the file holds the report"
+            );
+            // The typed report reads the file back whole (null ↔ NaN, every f64 exact).
+            let typed: visco::identify::IdentifyReport = serde_json::from_value(j.clone()).unwrap();
+            assert_eq!(serde_json::to_value(&typed).unwrap(), j, "typed read-back");
             (back, *fit, j)
         })
         .collect()
@@ -303,7 +313,7 @@ fn check_plausible(name: &str, rec: &Recording, f: &ForceCurveFit, j: &Json) {
             diff <= 1e-9 * range,
             "{name}: −K·D vs vendor force: {diff} of {range}"
         );
-        assert_eq!(j.at("vendor_force.matches"), Some(&Json::Bool(true)));
+        assert_eq!(at(&j, "vendor_force.matches"), Some(&Json::Bool(true)));
     }
     // The fit: the approach (fitted) is reproduced to a few % of the deflection range.
     assert!(
@@ -311,8 +321,8 @@ fn check_plausible(name: &str, rec: &Recording, f: &ForceCurveFit, j: &Json) {
         "{name}: approach misfit"
     );
     check_dynamics(name, rec, f, j);
-    assert!(j.at("taps.0.k_n_per_m").and_then(Json::as_f64).unwrap() > 0.0);
-    assert!(j.at("rms_misfit_m").and_then(Json::as_f64).is_some());
+    assert!(at(&j, "taps.0.k_n_per_m").and_then(Json::as_f64).unwrap() > 0.0);
+    assert!(at(&j, "rms_misfit_m").and_then(Json::as_f64).is_some());
     assert!(k > 0.0);
 }
 
@@ -323,8 +333,7 @@ fn check_dynamics(name: &str, rec: &Recording, f: &ForceCurveFit, j: &Json) -> f
     let k = rec.meta.cantilever_k_n_per_m;
     let worst = f.dynamics.inertial_n.max(f.dynamics.damping_n);
     let ratio = worst / k / f.baseline.noise_m;
-    let reported = j
-        .at("cantilever_dynamics.to_noise")
+    let reported = at(&j, "cantilever_dynamics.to_noise")
         .and_then(Json::as_f64)
         .unwrap();
     println!(
@@ -342,7 +351,7 @@ fn check_dynamics(name: &str, rec: &Recording, f: &ForceCurveFit, j: &Json) -> f
         "{name}: {reported} vs {ratio}"
     );
     assert!(
-        (j.at("cantilever_dynamics.to_force_range")
+        (at(&j, "cantilever_dynamics.to_force_range")
             .and_then(Json::as_f64)
             .unwrap()
             / (worst / f.force_range_n)
@@ -351,7 +360,7 @@ fn check_dynamics(name: &str, rec: &Recording, f: &ForceCurveFit, j: &Json) -> f
             < 1e-12
     );
     assert_eq!(
-        j.at("cantilever_dynamics.neglected"),
+        at(&j, "cantilever_dynamics.neglected"),
         Some(&Json::Bool(ratio < 1.0)),
         "{name}: neglected iff the dynamics are below the noise"
     );
@@ -431,7 +440,12 @@ fn lever_dynamics_neglected_only_when_the_noise_hides_them() {
         let Outcome::ForceCurve(fit) = report.outcome else {
             panic!("not a force curve")
         };
-        let ratio = check_dynamics(&format!("{ramp_s} s ramps"), &rec, &fit, &report.json);
+        let ratio = check_dynamics(
+            &format!("{ramp_s} s ramps"),
+            &rec,
+            &fit,
+            &serde_json::to_value(&report.json).unwrap(),
+        );
         assert_eq!(
             fit.dynamics.neglected, quasi_static,
             "{ramp_s} s ramps: ratio {ratio}"

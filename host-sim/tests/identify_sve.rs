@@ -15,11 +15,14 @@
 //! continuum mean sag, which differs from the lattice's by a few nm: within 8 nm.
 
 mod identify_support;
+mod report_support;
 
 use identify_support::*;
-use visco::identify::{identify, Json, Options, Outcome};
+use serde_json::Value as Json;
+use visco::identify::{identify, Options, Outcome};
 use visco::plant::PlantConfig;
 use visco::recording::Recording;
+use visco::report::at;
 use visco::sample::Sample;
 use visco_core::geometry::{contact_radius, Lattice};
 use visco_core::Config;
@@ -176,10 +179,10 @@ fn sve_scan_of_a_tilted_bed_gives_its_maps() {
     assert!(report.rms_misfit_m < 1e-9, "misfit {}", report.rms_misfit_m);
 
     // The report and the map files.
-    let j = Json::parse(&std::fs::read_to_string(dir.path().join("scan.json")).unwrap()).unwrap();
-    assert_eq!(j.at("mode").and_then(Json::as_str), Some("sve"));
+    let j = report_support::validate_file("identify", &dir.path().join("scan.json"));
+    assert_eq!(at(&j, "mode").and_then(Json::as_str), Some("sve"));
     assert_eq!(
-        j.at("taps").and_then(Json::as_array).map(|a| a.len()),
+        at(&j, "taps").and_then(Json::as_array).map(Vec::len),
         Some(0)
     );
     for (name, file) in [
@@ -188,12 +191,12 @@ fn sve_scan_of_a_tilted_bed_gives_its_maps() {
         ("height_m", "scan_height.csv"),
         ("k_element_n_per_m", "scan_k_element.csv"),
     ] {
-        let m = j.at(&format!("maps.{name}")).unwrap();
-        assert_eq!(m.at("valid_pixels").and_then(Json::as_f64), Some(20.0));
-        assert!(m.at("mean").and_then(Json::as_f64).unwrap().is_finite());
+        let m = at(&j, &format!("maps.{name}")).unwrap();
+        assert_eq!(at(&m, "valid_pixels").and_then(Json::as_f64), Some(20.0));
+        assert!(at(&m, "mean").and_then(Json::as_f64).unwrap().is_finite());
         let path = dir.path().join(file);
         assert_eq!(
-            m.at("file").and_then(Json::as_str),
+            at(&m, "file").and_then(Json::as_str),
             Some(path.to_str().unwrap())
         );
         let text = std::fs::read_to_string(&path).unwrap();

@@ -391,7 +391,7 @@ fn identify_file(
     let report = py
         .detach(|| identify(&path, &opts))
         .map_err(|e| identify_error(py, &e))?;
-    Ok((report.json.to_pretty(), report.files))
+    Ok((visco::report::to_pretty(&report.json), report.files))
 }
 
 /// The panic payload that carries a Ctrl-C (or a raising progress callback) out of the
@@ -457,7 +457,12 @@ fn diagnose<'py>(
                     resume_unwind(Box::new(Interrupted(e)));
                 }
             })
-            .map(|d| (d.to_json(&label, &rec).to_pretty(), d.series_csv()))
+            .map(|d| {
+                (
+                    visco::report::to_pretty(&d.to_json(&label, &rec)),
+                    d.series_csv(),
+                )
+            })
         }))
     });
     let (json, series) = match outcome {

@@ -3,6 +3,7 @@
 
 pub mod digest;
 pub mod firmware;
+pub mod firmware_report;
 pub mod fuzz;
 pub mod suite;
 /// The host end of the firmware link (`visco::telemetry`).

@@ -127,6 +127,9 @@ enum Task {
         #[arg(long)]
         no_replay: bool,
     },
+    /// Regenerate the reports' JSON Schemas: host-sim/schemas/ (the `visco` reports) and
+    /// xtask/schemas/firmware-report.schema.json.
+    Schemas,
     /// Everything: install tools, fmt, no_std build, host tests, firmware tests, the Python
     /// package (what CI runs).
     Test,
@@ -252,6 +255,7 @@ fn run(task: Task) -> Result<(), String> {
         Task::FirmwareReport { json, no_replay } => {
             firmware::firmware_report(json.as_deref(), !no_replay)
         }
+        Task::Schemas => xtask::firmware_report::write_schemas(),
         Task::Test => xtask::suite::run_all(),
         Task::FirmwareTest => firmware::firmware_tests(),
         Task::PythonTest => xtask::suite::python_tests(),

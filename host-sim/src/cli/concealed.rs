@@ -6,7 +6,9 @@ use clap::Args;
 
 use super::CliResult;
 use visco::diagnose::search::SearchOptions;
-use visco::experiment::concealed::{run_recordings, run_suite, SuiteReport, SuiteRow};
+use visco::experiment::concealed::{
+    run_recordings, run_suite, ConcealedReport, SuiteReport, SuiteRow,
+};
 
 #[derive(Debug, Args)]
 #[command(after_help = "\
@@ -94,13 +96,18 @@ pub fn run(args: ConcealedArgs) -> CliResult {
                 .map_or(String::new(), |e| format!(" (refused: {e})"))
         );
     };
-    let mut out = visco::identify::json::Json::obj();
+    let mut out = ConcealedReport {
+        schema_version: visco::experiment::concealed::SCHEMA_VERSION,
+        suite: None,
+        plant: None,
+        independent: None,
+    };
     if !args.no_plant {
         let t = std::time::Instant::now();
         let report = run_suite(args.seeds, threads, &opts, &progress);
         println!("## The plant suite (visco's own simulator)\n");
         print_report(&report, t.elapsed().as_secs_f64());
-        out = report.to_json();
+        out.suite = Some(report.to_json());
     }
     if let Some(dir) = &args.recordings {
         let t = std::time::Instant::now();
@@ -111,17 +118,13 @@ pub fn run(args: ConcealedArgs) -> CliResult {
         );
         print_report(&report, t.elapsed().as_secs_f64());
         let mut indep = report.to_json();
-        indep.set("recordings_dir", dir.display().to_string());
-        out = if args.no_plant {
-            visco::identify::json::Json::obj().with("independent", indep)
-        } else {
-            visco::identify::json::Json::obj()
-                .with("plant", out)
-                .with("independent", indep)
-        };
+        indep.recordings_dir = Some(dir.display().to_string());
+        // With both suites, the plant's moves under `plant` (see ConcealedReport).
+        out.plant = out.suite.take();
+        out.independent = Some(indep);
     }
     if let Some(path) = args.json {
-        std::fs::write(&path, out.to_pretty())
+        std::fs::write(&path, visco::report::to_pretty(&out))
             .map_err(|e| format!("{}: cannot write: {e}", path.display()))?;
         println!("  -> {}", path.display());
     }

@@ -77,7 +77,11 @@ pub fn run(args: FaultsArgs) -> CliResult {
         all.extend(runs);
     }
     if let Some(path) = &args.json {
-        let json = serde_json::to_string_pretty(&all)?;
+        let report = visco::experiment::faults::FaultsReport {
+            schema_version: visco::experiment::faults::SCHEMA_VERSION,
+            runs: all,
+        };
+        let json = visco::report::to_pretty(&report);
         visco::output::write_atomic(path, json.as_bytes())?;
         eprintln!("wrote {}", path.display());
     }

@@ -13,6 +13,7 @@ mod faults;
 mod identify;
 mod import;
 mod replay;
+mod schema;
 mod sweep;
 
 use clap::{Parser, Subcommand};
@@ -50,6 +51,9 @@ enum Command {
     /// Replay a recording's deflection through the firmware under QEMU, bit for bit against
     /// the host build of the core.
     Replay(replay::ReplayArgs),
+    /// The JSON Schema of a report the tools write (identify, diagnose, concealed, demo,
+    /// sweep, faults).
+    Schema(schema::SchemaArgs),
 }
 
 /// Parses the command line, runs the subcommand, reports errors. Exit status: 0 success,
@@ -65,6 +69,7 @@ pub fn run() -> ExitCode {
         Command::Concealed(args) => concealed::run(args),
         Command::Sweep(args) => sweep::run(args),
         Command::Replay(args) => replay::run(args),
+        Command::Schema(args) => schema::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

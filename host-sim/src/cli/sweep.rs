@@ -32,16 +32,6 @@ enum What {
     Excitation,
 }
 
-#[derive(serde::Serialize, Default)]
-struct Out {
-    sve: Vec<sweep::SweepPoint>,
-    dive: Vec<sweep::SweepPoint>,
-    sve_fastest_meeting_goal: Option<sweep::SweepPoint>,
-    dive_fastest_meeting_goal: Option<sweep::SweepPoint>,
-    excitation: Vec<excitation_study::Candidate>,
-    notes: Vec<String>,
-}
-
 fn print_point(name: &str, p: &sweep::SweepPoint) {
     eprintln!(
         "{name} {:>7.3} s: {:>7.1} px/s  RMS h/c/k {:>6.2} / {:>6.2} / {:>6.2} %  max away from steep {:>6.2} / {:>6.2} / {:>6.2} %  failed {}  (paper scaling RMS {:.2} / {:.2} / {:.2} %; block {} samples)  {}",
@@ -90,7 +80,10 @@ fn plot(
 
 pub fn run(args: SweepArgs) -> CliResult {
     std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
-    let mut out = Out::default();
+    let mut out = sweep::SweepReport {
+        schema_version: sweep::SCHEMA_VERSION,
+        ..Default::default()
+    };
     if matches!(args.what, What::All | What::Sve) {
         let periods = [2.0, 1.0, 0.5, 0.2, 0.1, 0.08, 0.07, 0.06, 0.05, 0.04];
         out.sve = sweep::sve_sweep(&periods, args.rate, args.seed, |p| {

@@ -21,11 +21,11 @@
 //! `contact` (moving in, loading), `dwell` (U at rest in contact), `retract` (moving away),
 //! `free` (at rest out of contact).
 
+use super::json_report::{SpanJson, TestJson};
 use super::model::Trace;
 use super::noise::{chi2_sf, normal_sf, NoiseModel};
 use super::problem::Problem;
 use super::spectrum::Spectrum;
-use crate::identify::json::Json;
 use crate::identify::signal::moving_average;
 use visco_core::units::{LENGTH, TIME};
 
@@ -132,18 +132,17 @@ pub struct Span {
 }
 
 impl Span {
-    pub fn to_json(&self) -> Json {
-        let mut j = Json::obj()
-            .with("t_start_s", self.t_start_s)
-            .with("t_end_s", self.t_end_s)
-            .with("phase", self.phase.as_str())
-            .with("rows", vec![self.rows.0 as f64 + 1.0, self.rows.1 as f64])
-            .with("share", self.share);
-        if let Some((x, y)) = self.xy_m {
-            j.set("x_m", x);
-            j.set("y_m", y);
+    /// For the report.
+    pub fn to_json(&self) -> SpanJson {
+        SpanJson {
+            t_start_s: self.t_start_s,
+            t_end_s: self.t_end_s,
+            phase: self.phase.as_str().into(),
+            rows: [self.rows.0 as u64 + 1, self.rows.1 as u64],
+            share: self.share.into(),
+            x_m: self.xy_m.map(|(x, _)| x),
+            y_m: self.xy_m.map(|(_, y)| y),
         }
-        j
     }
 }
 
@@ -237,24 +236,21 @@ pub struct Test {
 }
 
 impl Test {
-    pub fn to_json(&self) -> Json {
-        let mut j = Json::obj()
-            .with("group", self.group)
-            .with("test", self.name.as_str())
-            .with("statistic", self.statistic)
-            .with("value", self.value)
-            .with("p_value", self.p_value)
-            .with("p_adjusted", self.p_adjusted)
-            .with("significant", self.significant)
-            .with("detail", self.detail.as_str());
-        if let Some((a, b)) = self.span {
-            j.set("t_start_s", a);
-            j.set("t_end_s", b);
+    /// For the report.
+    pub fn to_json(&self) -> TestJson {
+        TestJson {
+            group: self.group.into(),
+            test: self.name.clone(),
+            statistic: self.statistic.into(),
+            value: self.value.into(),
+            p_value: self.p_value.into(),
+            p_adjusted: self.p_adjusted.into(),
+            significant: self.significant,
+            detail: self.detail.clone(),
+            t_start_s: self.span.map(|(a, _)| a),
+            t_end_s: self.span.map(|(_, b)| b),
+            f_hz: self.freq_hz,
         }
-        if let Some(f) = self.freq_hz {
-            j.set("f_hz", f);
-        }
-        j
     }
 }
 

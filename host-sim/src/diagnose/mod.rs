@@ -21,6 +21,7 @@
 pub mod candidates;
 pub mod explain;
 pub mod fit;
+pub mod json_report;
 pub mod locate;
 pub mod model;
 pub mod noise;
@@ -29,6 +30,7 @@ pub mod report;
 pub mod search;
 pub mod spectrum;
 
+pub use json_report::DiagnoseReport;
 pub use report::{diagnose, Diagnosis, Options};
 
 use candidates::Env;

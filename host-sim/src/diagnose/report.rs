@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 
 use super::candidates::Env;
 use super::explain::explain;
+use super::json_report as jr;
 use super::locate::{locate, phases, spans, Located, Phase, Span};
 use super::model::Trace;
 use super::noise::HeldOut;
@@ -20,10 +21,10 @@ use super::search::{c_a_si, k_a_si, Search, SearchOptions, DETECTION_FLOOR};
 use crate::identify::error::{IdentifyError, Result};
 use crate::identify::figures::plain;
 use crate::identify::files::{push_num, Staged};
-use crate::identify::json::Json;
 use crate::output::figure::{self, LinePanel, LinePlot, Quantity, Series, PALETTE};
 use crate::plant::effects::EffectKind;
 use crate::recording::{Mode, Recording};
+use crate::report::{nums, Num, Ordered};
 use visco_core::units::{LENGTH, TIME};
 
 /// The nominal model, in the report's words.
@@ -229,58 +230,48 @@ pub fn analyse(
 }
 
 impl Diagnosis {
-    /// The report (`recording.md` §2 and more).
-    pub fn to_json(&self, recording: &str, rec: &Recording) -> Json {
+    /// The report (`recording.md` §2 and more); the files written beside it are the caller's.
+    pub fn to_json(&self, recording: &str, rec: &Recording) -> jr::DiagnoseReport {
         let p = &self.problem;
-        let left_out: Vec<Json> = self
+        let left_out: Vec<jr::LeftOut> = self
             .findings
             .iter()
-            .map(|f| {
-                let mut params = Json::obj();
-                for (k, v) in &f.parameters {
-                    params.set(k, *v);
-                }
-                Json::obj()
-                    .with("effect", f.kind.as_str())
-                    .with("explanation", f.explanation.as_str())
-                    .with(
-                        "where",
-                        Json::Arr(f.spans.iter().map(|s| s.to_json()).collect()),
-                    )
-                    .with("parameters", params)
-                    .with("rms_before_m", f.rms_before_m)
-                    .with("rms_after_m", f.rms_after_m)
-                    .with(
-                        "phases",
-                        Json::Arr(
-                            f.phases
-                                .iter()
-                                .map(|(ph, b, a)| {
-                                    Json::obj()
-                                        .with("phase", ph.as_str())
-                                        .with("rms_before_m", *b)
-                                        .with("rms_after_m", *a)
-                                })
-                                .collect(),
-                        ),
-                    )
-                    .with(
-                        "evidence",
-                        Json::obj()
-                            .with("statistic", "held-out likelihood ratio")
-                            .with("value", 2.0 * f.evidence.loglik_gain)
-                            .with("z", f.evidence.z)
-                            .with("p_value", f.evidence.p_value)
-                            .with("level", f.level)
-                            .with("held_out_samples", f.evidence.n)
-                            .with("peak_contribution_m", f.peak_m)
-                            .with("noise_rms_m", f.noise_m)
-                            .with("physics", f.kind.physics()),
-                    )
+            .map(|f| jr::LeftOut {
+                effect: f.kind.as_str().into(),
+                explanation: f.explanation.clone(),
+                where_: f.spans.iter().map(Span::to_json).collect(),
+                parameters: Ordered(
+                    f.parameters
+                        .iter()
+                        .map(|(k, v)| (k.clone(), Num(*v)))
+                        .collect(),
+                ),
+                rms_before_m: f.rms_before_m.into(),
+                rms_after_m: f.rms_after_m.into(),
+                phases: f
+                    .phases
+                    .iter()
+                    .map(|(ph, b, a)| jr::PhaseRms {
+                        phase: ph.as_str().into(),
+                        rms_before_m: (*b).into(),
+                        rms_after_m: (*a).into(),
+                    })
+                    .collect(),
+                evidence: jr::Evidence {
+                    statistic: "held-out likelihood ratio".into(),
+                    value: (2.0 * f.evidence.loglik_gain).into(),
+                    z: f.evidence.z.into(),
+                    p_value: f.evidence.p_value.into(),
+                    level: f.level.into(),
+                    held_out_samples: f.evidence.n as u64,
+                    peak_contribution_m: f.peak_m.into(),
+                    noise_rms_m: f.noise_m.into(),
+                    physics: f.kind.physics().into(),
+                },
             })
             .collect();
         let s = &self.search;
-        let contacts: Vec<Json> = s
+        let contacts: Vec<jr::ContactJson> = s
             .nominal
             .nominal
             .contacts
@@ -288,196 +279,149 @@ impl Diagnosis {
             .enumerate()
             .map(|(u, c)| {
                 let (a, b) = p.unit_rows[u];
-                let mut j = Json::obj()
-                    .with("unit", u)
-                    .with("rows", vec![a as f64 + 1.0, b as f64])
-                    .with("in_contact", c.k_a > 0.0)
-                    .with("contact_height_m", c.h * LENGTH)
-                    .with("k_a_n_per_m3", k_a_si(c.k_a))
-                    .with("c_a_ns_per_m3", c_a_si(c.c_a));
-                if let Some((x, y)) = p.unit_xy_m[u] {
-                    j.set("x_m", x);
-                    j.set("y_m", y);
+                let xy = p.unit_xy_m[u];
+                jr::ContactJson {
+                    unit: u as u64,
+                    rows: [a as u64 + 1, b as u64],
+                    in_contact: c.k_a > 0.0,
+                    contact_height_m: (c.h * LENGTH).into(),
+                    k_a_n_per_m3: k_a_si(c.k_a).into(),
+                    c_a_ns_per_m3: c_a_si(c.c_a).into(),
+                    x_m: xy.map(|(x, _)| x),
+                    y_m: xy.map(|(_, y)| y),
                 }
-                j
             })
             .collect();
-        let mut stages: Vec<Json> = Vec::new();
-        for (stage, level) in s.levels.iter().enumerate() {
-            let cands: Vec<Json> = s
-                .tested
-                .iter()
-                .filter(|(st, _, _)| *st == stage)
-                .map(|(_, t, chosen)| {
-                    Json::obj()
-                        .with("effect", t.kind.as_str())
-                        .with("z", t.test.z)
-                        .with("p_value", t.test.p_value)
-                        .with("held_out_loglik_gain", t.test.loglik_gain)
-                        .with("peak_contribution_m", t.peak() * LENGTH)
-                        .with("noise_rms_m", t.noise_rms * LENGTH)
-                        .with("passed_test", t.test.p_value < *level)
-                        .with("passed_floor", t.peak() >= DETECTION_FLOOR * t.noise_rms)
-                        .with("amplitude_at_limit", t.at_limit())
-                        .with("rms_where_before_m", t.rms_where_before * LENGTH)
-                        .with("rms_where_after_m", t.rms_where_after * LENGTH)
-                        .with("chosen", *chosen)
-                })
-                .collect();
-            stages.push(
-                Json::obj()
-                    .with("stage", stage + 1)
-                    .with("level", *level)
-                    .with("candidates", Json::Arr(cands)),
-            );
-        }
+        let stages: Vec<jr::Stage> = s
+            .levels
+            .iter()
+            .enumerate()
+            .map(|(stage, level)| jr::Stage {
+                stage: stage as u64 + 1,
+                level: (*level).into(),
+                candidates: s
+                    .tested
+                    .iter()
+                    .filter(|(st, _, _)| *st == stage)
+                    .map(|(_, t, chosen)| jr::Candidate {
+                        effect: t.kind.as_str().into(),
+                        z: t.test.z.into(),
+                        p_value: t.test.p_value.into(),
+                        held_out_loglik_gain: t.test.loglik_gain.into(),
+                        peak_contribution_m: (t.peak() * LENGTH).into(),
+                        noise_rms_m: (t.noise_rms * LENGTH).into(),
+                        passed_test: t.test.p_value < *level,
+                        passed_floor: t.peak() >= DETECTION_FLOOR * t.noise_rms,
+                        amplitude_at_limit: t.at_limit(),
+                        rms_where_before_m: (t.rms_where_before * LENGTH).into(),
+                        rms_where_after_m: (t.rms_where_after * LENGTH).into(),
+                        chosen: *chosen,
+                    })
+                    .collect(),
+            })
+            .collect();
         let nn = &s.nominal_noise;
         let nom = &s.nominal.nominal;
         let (initial_state, calibration) = if p.inst.dynamic() {
             let cal = nom.instrument(&p.inst);
             (
-                Json::obj()
-                    .with(
-                        "model",
-                        "fitted: Z's departure from static equilibrium with the first U, and Ż, \
-                         at the first sample",
-                    )
-                    .with("z0_m", nom.z0 * LENGTH)
-                    .with("v0_m_per_s", nom.v0 * LENGTH / TIME),
-                Json::obj()
-                    .with(
-                        "model",
-                        format!(
-                            "the header's f0 and Q as calibrations: corrections fitted under a \
-                             Gaussian prior of {:.1} % (f0) and {:.0} % (Q), K kept",
-                            100.0 * super::search::F0_TOLERANCE,
-                            100.0 * super::search::Q_TOLERANCE
-                        ),
-                    )
-                    .with("f0_correction", nom.f0_scale)
-                    .with("q_correction", nom.q_scale)
-                    .with("f0_hz", cal.f0_mhz().map_or(f64::NAN, |f| f / TIME))
-                    .with(
-                        "q",
-                        cal.m
-                            .map_or(f64::NAN, |m| (cal.k * m).sqrt() / cal.c.max(1e-300)),
+                Some(jr::InitialState {
+                    model: "fitted: Z's departure from static equilibrium with the first U, and \
+                            Ż, at the first sample"
+                        .into(),
+                    z0_m: (nom.z0 * LENGTH).into(),
+                    v0_m_per_s: (nom.v0 * LENGTH / TIME).into(),
+                }),
+                Some(jr::Calibration {
+                    model: format!(
+                        "the header's f0 and Q as calibrations: corrections fitted under a \
+                         Gaussian prior of {:.1} % (f0) and {:.0} % (Q), K kept",
+                        100.0 * super::search::F0_TOLERANCE,
+                        100.0 * super::search::Q_TOLERANCE
                     ),
+                    f0_correction: nom.f0_scale.into(),
+                    q_correction: nom.q_scale.into(),
+                    f0_hz: cal.f0_mhz().map_or(f64::NAN, |f| f / TIME).into(),
+                    q: cal
+                        .m
+                        .map_or(f64::NAN, |m| (cal.k * m).sqrt() / cal.c.max(1e-300))
+                        .into(),
+                }),
             )
         } else {
-            (Json::Null, Json::Null)
+            (None, None)
         };
-        Json::obj()
-            .with("recording", recording)
-            .with("nominal_model", NOMINAL_MODEL)
-            .with("rms_before_m", self.rms_before_m)
-            .with("rms_after_m", self.rms_after_m)
-            .with("left_out", Json::Arr(left_out))
-            .with("visco_version", env!("CARGO_PKG_VERSION"))
-            .with("mode", rec.meta.mode.as_str())
-            .with(
-                "nominal",
-                Json::obj()
-                    .with(
-                        "model",
-                        "M·Z̈ = K·(U − Z) + C·(U̇ − Ż) + F_ts, D = U − Z + d0, \
-                         F_ts = k_a·V(δ) − c_a·A(δ)·Ż (sphere on the bed's continuum)",
-                    )
-                    .with("dynamics", p.dynamics_source.as_str())
-                    .with(
-                        "input_between_samples",
-                        if !p.inst.dynamic() {
-                            "not used (quasi-static)"
-                        } else {
-                            s.nominal.nominal.input.describe()
-                        },
-                    )
-                    .with("initial_state", initial_state)
-                    .with("calibration", calibration)
-                    .with("offset_m", s.nominal.nominal.offset * LENGTH)
-                    .with("contacts", Json::Arr(contacts))
-                    .with(
-                        "noise",
-                        Json::obj()
-                            .with("model", "autoregressive, Burg, order by BIC")
-                            .with("order", nn.a.len())
-                            .with("innovation_sigma_m", nn.sigma * LENGTH)
-                            .with("residual_sigma_m", nn.raw_sigma * LENGTH),
-                    ),
-            )
-            .with(
-                "held_out",
-                Json::obj()
-                    .with(
-                        "scheme",
-                        "interleaved blocks: every other block fits, the rest is held out",
-                    )
-                    .with("samples_per_block", BLOCK)
-                    .with("held_out_samples", p.held.iter().filter(|h| **h).count())
-                    .with("fit_samples", p.fit.iter().filter(|h| **h).count()),
-            )
-            .with(
-                "selection",
-                Json::obj()
-                    .with(
-                        "method",
-                        "forward selection: each candidate fitted on the fit samples and \
+        jr::DiagnoseReport {
+            schema_version: jr::SCHEMA_VERSION,
+            recording: recording.into(),
+            nominal_model: NOMINAL_MODEL.into(),
+            rms_before_m: self.rms_before_m.into(),
+            rms_after_m: self.rms_after_m.into(),
+            left_out,
+            visco_version: env!("CARGO_PKG_VERSION").into(),
+            mode: rec.meta.mode.as_str().into(),
+            nominal: jr::Nominal {
+                model: "M·Z̈ = K·(U − Z) + C·(U̇ − Ż) + F_ts, D = U − Z + d0, \
+                        F_ts = k_a·V(δ) − c_a·A(δ)·Ż (sphere on the bed's continuum)"
+                    .into(),
+                dynamics: p.dynamics_source.clone(),
+                input_between_samples: if !p.inst.dynamic() {
+                    "not used (quasi-static)"
+                } else {
+                    s.nominal.nominal.input.describe()
+                }
+                .into(),
+                initial_state,
+                calibration,
+                offset_m: (s.nominal.nominal.offset * LENGTH).into(),
+                contacts,
+                noise: jr::NoiseJson {
+                    model: "autoregressive, Burg, order by BIC".into(),
+                    order: nn.a.len() as u64,
+                    innovation_sigma_m: (nn.sigma * LENGTH).into(),
+                    residual_sigma_m: (nn.raw_sigma * LENGTH).into(),
+                },
+            },
+            held_out: jr::HeldOutJson {
+                scheme: "interleaved blocks: every other block fits, the rest is held out".into(),
+                samples_per_block: BLOCK as u64,
+                held_out_samples: p.held.iter().filter(|h| **h).count() as u64,
+                fit_samples: p.fit.iter().filter(|h| **h).count() as u64,
+            },
+            selection: jr::Selection {
+                method: "forward selection: each candidate fitted on the fit samples and \
                          tested on the held-out ones (whitened likelihood ratio, one-sided \
                          z); the significant one with the largest held-out likelihood gain \
-                         joins the model",
-                    )
-                    .with("family_alpha", self.alpha)
-                    .with("correction", "Bonferroni over the candidates of each stage")
-                    .with(
-                        "detection_floor",
-                        format!(
-                            "an effect must also change D by {DETECTION_FLOOR}× the noise \
-                             RMS somewhere"
-                        ),
-                    )
-                    .with("simulations", s.evaluations)
-                    .with("stages", Json::Arr(stages)),
-            )
-            .with(
-                "locate",
-                Json::obj()
-                    .with(
-                        "correction",
-                        format!("Holm, family-wise α = {}", self.alpha),
-                    )
-                    .with("tones_hz", self.located.tones_hz.clone())
-                    .with(
-                        "phases",
-                        Json::Arr(
-                            self.located
-                                .phases
-                                .iter()
-                                .map(|m| {
-                                    Json::obj()
-                                        .with("phase", m.phase.as_str())
-                                        .with("held_out_samples", m.samples)
-                                        .with("rms_before_m", m.rms_before_m)
-                                        .with("rms_after_m", m.rms_after_m)
-                                })
-                                .collect(),
-                        ),
-                    )
-                    .with(
-                        "tests",
-                        Json::Arr(self.located.tests.iter().map(|t| t.to_json()).collect()),
-                    ),
-            )
-            .with(
-                "units",
-                Json::obj()
-                    .with("_m", "metres")
-                    .with("_s", "seconds")
-                    .with("_hz", "hertz")
-                    .with("_n", "newtons")
-                    .with("_ns_per_m", "N·s/m")
-                    .with("_n_per_m3", "N/m³ (per-area spring of the bed)")
-                    .with("_ns_per_m3", "N·s/m³ (per-area damper of the bed)")
-                    .with("rows", "1-based data rows, first and last"),
-            )
+                         joins the model"
+                    .into(),
+                family_alpha: self.alpha,
+                correction: "Bonferroni over the candidates of each stage".into(),
+                detection_floor: format!(
+                    "an effect must also change D by {DETECTION_FLOOR}× the noise RMS somewhere"
+                ),
+                simulations: s.evaluations as u64,
+                stages,
+            },
+            locate: jr::LocateJson {
+                correction: format!("Holm, family-wise α = {}", self.alpha),
+                tones_hz: nums(self.located.tones_hz.iter().copied()),
+                phases: self
+                    .located
+                    .phases
+                    .iter()
+                    .map(|m| jr::PhaseSamples {
+                        phase: m.phase.as_str().into(),
+                        held_out_samples: m.samples as u64,
+                        rms_before_m: m.rms_before_m.into(),
+                        rms_after_m: m.rms_after_m.into(),
+                    })
+                    .collect(),
+                tests: self.located.tests.iter().map(|t| t.to_json()).collect(),
+            },
+            units: jr::Units::default(),
+            series_csv: None,
+            figures: None,
+        }
     }
 
     /// One line per finding, for the terminal.
@@ -593,17 +537,9 @@ fn write(
         }
     }
     let mut json = diag.to_json(&path.display().to_string(), rec);
-    json.set("series_csv", series.display().to_string());
-    json.set(
-        "figures",
-        Json::Arr(
-            figures
-                .iter()
-                .map(|f| Json::from(f.display().to_string()))
-                .collect(),
-        ),
-    );
-    staged.write(&opts.json, &json.to_pretty())?;
+    json.series_csv = Some(series.display().to_string());
+    json.figures = Some(figures.iter().map(|f| f.display().to_string()).collect());
+    staged.write(&opts.json, &crate::report::to_pretty(&json))?;
     staged.commit()
 }
 

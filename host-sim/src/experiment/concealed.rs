@@ -32,7 +32,10 @@
 use crate::plant::effects::{EffectKind, EffectSpec};
 use crate::plant::{Cantilever, Plant, PlantConfig};
 use crate::recording::{Metadata, Mode, Recording};
+use crate::report::Num;
 use crate::sample::Sample;
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
 /// One instrument + sample + protocol of the suite.
@@ -1296,98 +1299,174 @@ impl SuiteReport {
         s
     }
 
-    /// The summary as JSON, with every row.
-    pub fn to_json(&self) -> crate::identify::json::Json {
-        use crate::identify::json::Json;
-        let rows: Vec<Json> = self
-            .rows
-            .iter()
-            .map(|r| {
-                Json::obj()
-                    .with("concealed", label(r.effect))
-                    .with("seed", r.seed)
-                    .with("setup", r.setup.as_str())
-                    .with("peak_difference_over_noise", r.ratio)
-                    .with("noise_rms_m", r.noise_m)
-                    .with(
-                        "named",
-                        Json::Arr(r.named.iter().map(|k| Json::from(k.as_str())).collect()),
-                    )
-                    .with("correct", r.correct())
-                    .with("extra_wrong_finding", r.extra_wrong())
-                    .with("wrong_names", r.wrong_names())
-                    .with("refused", r.error.clone().unwrap_or_default())
-                    .with("rms_before_m", r.rms_before_m)
-                    .with("rms_after_m", r.rms_after_m)
-                    .with("truth_error_before_m", r.truth_error_before_m)
-                    .with("truth_error_after_m", r.truth_error_after_m)
-                    .with("span_rms_before_m", r.span_rms_before_m)
-                    .with("span_rms_after_m", r.span_rms_after_m)
-                    .with("wall_s", r.wall_s)
-            })
-            .collect();
-        let per: Vec<Json> = self
-            .per_effect()
-            .into_iter()
-            .map(|(k, n, right, cut, two, span)| {
-                Json::obj()
-                    .with("effect", k.as_str())
-                    .with("recordings", n)
-                    .with("named_first", right)
-                    .with("median_truth_error_cut", cut)
-                    .with("share_cut_at_least_2", two)
-                    .with("median_span_rms_cut", span)
-            })
-            .collect();
-        Json::obj()
-            .with("seeds_per_class", self.seeds)
-            .with("alpha", self.alpha)
-            .with("top1_accuracy", self.top1_accuracy())
-            .with("false_alarm_rate", self.false_alarm_rate())
-            .with("extra_wrong_rate", self.extra_wrong_rate())
-            .with(
-                "clean_nominal_rms_over_noise_median",
-                self.clean_rms_over_noise(),
-            )
-            .with(
-                "per_class",
-                Json::Arr(
-                    self.per_class()
-                        .into_iter()
-                        .map(|c| {
-                            Json::obj()
-                                .with("class", c.class.map_or("clean", |k| k.as_str()))
-                                .with("recordings", c.recordings)
-                                .with("top1_right", c.top1_right)
-                                .with("right_with_extra_wrong_finding", c.extra_wrong)
-                                .with("exactly_right", c.exact)
-                                .with("any_wrong_name", c.any_wrong)
-                                .with("refused", c.refused)
-                        })
-                        .collect(),
-                ),
-            )
-            .with("per_effect", Json::Arr(per))
-            .with("confusion_markdown", self.confusion_markdown())
-            .with(
-                "definitions",
-                Json::obj()
-                    .with(
-                        "peak_difference_over_noise",
-                        "largest |D with − D without the effect| (noise-free runs) over the \
-                         recording's noise RMS; drawn log-uniform in 3–10",
-                    )
-                    .with(
-                        "truth_error",
-                        "held-out RMS of the model's D against the noise-free D with the \
-                         effect: the systematic misfit the noise hides",
-                    )
-                    .with(
-                        "span_rms",
-                        "held-out RMS of recorded − model over where the first finding acts, \
-                         before and after it",
-                    ),
-            )
-            .with("rows", Json::Arr(rows))
+    /// The summary for the JSON report, with every row.
+    pub fn to_json(&self) -> SuiteJson {
+        SuiteJson {
+            seeds_per_class: self.seeds,
+            alpha: self.alpha,
+            top1_accuracy: self.top1_accuracy().into(),
+            false_alarm_rate: self.false_alarm_rate().into(),
+            extra_wrong_rate: self.extra_wrong_rate().into(),
+            clean_nominal_rms_over_noise_median: self.clean_rms_over_noise().into(),
+            per_class: self
+                .per_class()
+                .into_iter()
+                .map(|c| ClassJson {
+                    class: c.class.map_or("clean", |k| k.as_str()).into(),
+                    recordings: c.recordings as u64,
+                    top1_right: c.top1_right as u64,
+                    right_with_extra_wrong_finding: c.extra_wrong as u64,
+                    exactly_right: c.exact as u64,
+                    any_wrong_name: c.any_wrong as u64,
+                    refused: c.refused as u64,
+                })
+                .collect(),
+            per_effect: self
+                .per_effect()
+                .into_iter()
+                .map(|(k, n, right, cut, two, span)| EffectJson {
+                    effect: k.as_str().into(),
+                    recordings: n as u64,
+                    named_first: right as u64,
+                    median_truth_error_cut: cut.into(),
+                    share_cut_at_least_2: two.into(),
+                    median_span_rms_cut: span.into(),
+                })
+                .collect(),
+            confusion_markdown: self.confusion_markdown(),
+            definitions: Definitions {
+                peak_difference_over_noise: "largest |D with − D without the effect| (noise-free \
+                                             runs) over the recording's noise RMS; drawn \
+                                             log-uniform in 3–10"
+                    .into(),
+                truth_error: "held-out RMS of the model's D against the noise-free D with the \
+                              effect: the systematic misfit the noise hides"
+                    .into(),
+                span_rms: "held-out RMS of recorded − model over where the first finding acts, \
+                           before and after it"
+                    .into(),
+            },
+            rows: self
+                .rows
+                .iter()
+                .map(|r| RowJson {
+                    concealed: label(r.effect).into(),
+                    seed: r.seed,
+                    setup: r.setup.as_str().into(),
+                    peak_difference_over_noise: r.ratio.into(),
+                    noise_rms_m: r.noise_m.into(),
+                    named: r.named.iter().map(|k| k.as_str().to_string()).collect(),
+                    correct: r.correct(),
+                    extra_wrong_finding: r.extra_wrong(),
+                    wrong_names: r.wrong_names() as u64,
+                    refused: r.error.clone().unwrap_or_default(),
+                    rms_before_m: r.rms_before_m.into(),
+                    rms_after_m: r.rms_after_m.into(),
+                    truth_error_before_m: r.truth_error_before_m.into(),
+                    truth_error_after_m: r.truth_error_after_m.into(),
+                    span_rms_before_m: r.span_rms_before_m.into(),
+                    span_rms_after_m: r.span_rms_after_m.into(),
+                    wall_s: r.wall_s.into(),
+                })
+                .collect(),
+            recordings_dir: None,
+        }
     }
+}
+
+/// The concealed report's `schema_version`.
+pub const SCHEMA_VERSION: u32 = 1;
+
+/// The report of `visco concealed --json FILE.json`. Its layout follows what ran: the plant
+/// suite alone is at the top level; with `--recordings` the independent suite is under
+/// `independent`, and the plant suite then (when it ran too) under `plant`.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct ConcealedReport {
+    /// Version of this report's layout (1): raised when a field is removed or renamed or changes
+    /// meaning or unit; adding a field keeps it.
+    pub schema_version: u32,
+    /// The plant suite, when it is the only one that ran.
+    #[serde(flatten)]
+    pub suite: Option<SuiteJson>,
+    /// The plant suite, when the independent one ran too.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plant: Option<SuiteJson>,
+    /// The suite on recordings visco did not make (`--recordings DIR`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub independent: Option<SuiteJson>,
+}
+
+/// One suite's summary and rows.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct SuiteJson {
+    pub seeds_per_class: u64,
+    pub alpha: f64,
+    pub top1_accuracy: Num,
+    pub false_alarm_rate: Num,
+    pub extra_wrong_rate: Num,
+    pub clean_nominal_rms_over_noise_median: Num,
+    pub per_class: Vec<ClassJson>,
+    pub per_effect: Vec<EffectJson>,
+    pub confusion_markdown: String,
+    pub definitions: Definitions,
+    pub rows: Vec<RowJson>,
+    /// The recordings' directory (the independent suite).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recordings_dir: Option<String>,
+}
+
+/// Counts of one concealed class (`clean`: no effect).
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct ClassJson {
+    pub class: String,
+    pub recordings: u64,
+    pub top1_right: u64,
+    pub right_with_extra_wrong_finding: u64,
+    pub exactly_right: u64,
+    pub any_wrong_name: u64,
+    pub refused: u64,
+}
+
+/// What the extended model cut, per effect.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct EffectJson {
+    pub effect: String,
+    pub recordings: u64,
+    pub named_first: u64,
+    pub median_truth_error_cut: Num,
+    pub share_cut_at_least_2: Num,
+    pub median_span_rms_cut: Num,
+}
+
+/// What the derived quantities mean.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct Definitions {
+    pub peak_difference_over_noise: String,
+    pub truth_error: String,
+    pub span_rms: String,
+}
+
+/// One recording of the suite.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct RowJson {
+    /// The effect concealed (`clean`: none).
+    pub concealed: String,
+    pub seed: u64,
+    pub setup: String,
+    pub peak_difference_over_noise: Num,
+    pub noise_rms_m: Num,
+    /// The effects diagnose named, first first.
+    pub named: Vec<String>,
+    pub correct: bool,
+    pub extra_wrong_finding: bool,
+    pub wrong_names: u64,
+    /// Why diagnose refused the recording (empty when it did not).
+    pub refused: String,
+    pub rms_before_m: Num,
+    pub rms_after_m: Num,
+    pub truth_error_before_m: Num,
+    pub truth_error_after_m: Num,
+    pub span_rms_before_m: Num,
+    pub span_rms_after_m: Num,
+    pub wall_s: Num,
 }

@@ -21,6 +21,7 @@ use crate::output::progress::Progress;
 use crate::output::{csv as map_csv, Grid, Map, OutputError};
 use crate::plant::Plant;
 use crate::sample::Sample;
+use schemars::JsonSchema;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -79,18 +80,24 @@ impl From<OutputError> for DemoError {
 }
 
 /// Error figures of one property in percent of its maximum.
-#[derive(Clone, Copy, Debug, Default, Serialize)]
+#[derive(Clone, Copy, Debug, Default, Serialize, JsonSchema)]
 pub struct Hck {
     /// Topography.
+    // Non-finite when not computable: written null (serde_json), so the schema allows it.
+    #[schemars(with = "Option<f64>")]
     pub h: f64,
     /// Damping.
+    // Non-finite when not computable: written null (serde_json), so the schema allows it.
+    #[schemars(with = "Option<f64>")]
     pub c: f64,
     /// Spring constant.
+    // Non-finite when not computable: written null (serde_json), so the schema allows it.
+    #[schemars(with = "Option<f64>")]
     pub k: f64,
 }
 
 /// The errors of one image under one scaling.
-#[derive(Clone, Copy, Debug, Default, Serialize)]
+#[derive(Clone, Copy, Debug, Default, Serialize, JsonSchema)]
 pub struct ErrorBlock {
     /// RMS over all pixels (% of max).
     pub rms_error_pct: Hck,
@@ -119,7 +126,7 @@ impl From<ImageErrors> for ErrorBlock {
 }
 
 /// One mode's entry in `report.json`.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, JsonSchema)]
 pub struct ModeReport {
     /// Pixels of the map (taps or pixels with both passes).
     pub pixels: usize,
@@ -160,9 +167,15 @@ pub struct ModeReport {
     pub force_depth_taps: Option<usize>,
 }
 
+/// `report.json`'s `schema_version`.
+pub const SCHEMA_VERSION: u32 = 1;
+
 /// `report.json`.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, JsonSchema)]
 pub struct DemoReport {
+    /// Version of this report's layout (1): raised when a field is removed or renamed or changes
+    /// meaning or unit; adding a field keeps it.
+    pub schema_version: u32,
     /// DIVE.
     pub dive: ModeReport,
     /// SVE.
@@ -476,6 +489,7 @@ pub fn run(opts: &DemoOptions) -> Result<DemoReport, DemoError> {
     );
 
     let mut report = DemoReport {
+        schema_version: SCHEMA_VERSION,
         dive: dive_report,
         sve: sve_report,
         simulated_s: dive.simulated_s + sve.simulated_s,
@@ -505,8 +519,7 @@ pub fn run(opts: &DemoOptions) -> Result<DemoReport, DemoError> {
         fit.map(|f| f.0),
     )?;
     report.wall_total_s = wall0.elapsed().as_secs_f64();
-    let json = serde_json::to_string_pretty(&report)
-        .map_err(|e| DemoError::Output(OutputError::new(&opts.out, e.to_string())))?;
+    let json = crate::report::to_pretty(&report);
     crate::output::write_atomic(&opts.out.join("report.json"), json.as_bytes())?;
     Ok(report)
 }

@@ -22,11 +22,12 @@
 use super::{run, Observer, Setup};
 use crate::plant::Plant;
 use crate::sample::Sample;
+use schemars::JsonSchema;
 use serde::Serialize;
 use visco_core::{status, Controller, Mode, StepOut};
 
 /// One candidate and its result.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, JsonSchema)]
 pub struct Candidate {
     /// f₁ (Hz).
     pub f1_hz: f64,
@@ -35,9 +36,13 @@ pub struct Candidate {
     /// Tip amplitudes at f₁ and f₂ on the nominal contact (m).
     pub tip_amplitudes_m: [f64; 2],
     /// Relative standard deviation of ĉ and k̂ over the read-out windows (fraction).
+    // Non-finite when not computable: written null (serde_json), so the schema allows it.
+    #[schemars(with = "[Option<f64>; 2]")]
     pub relative_spread: [f64; 2],
     /// Time for the estimator's k̂ to come within 1 % of its final value, from the nominal
     /// start, averaged over the taps (s).
+    // Non-finite when not computable: written null (serde_json), so the schema allows it.
+    #[schemars(with = "Option<f64>")]
     pub time_to_1pct_s: f64,
     /// Predicted relative information per sample of c and k (θ²·R̄ᵢᵢ, arbitrary common scale).
     pub predicted_information: [f64; 2],

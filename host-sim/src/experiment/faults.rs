@@ -19,11 +19,12 @@
 use super::Setup;
 use crate::plant::Plant;
 use crate::sample::Sample;
+use schemars::JsonSchema;
 use serde::Serialize;
 use visco_core::{status, Command, Controller, Mode, Phase};
 
 /// A fault to inject.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, JsonSchema)]
 #[serde(rename_all = "kebab-case")]
 pub enum FaultClass {
     /// 200 µs of NaN from the ADC.
@@ -64,7 +65,7 @@ impl FaultClass {
 }
 
 /// The outcome of one fault.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, JsonSchema)]
 pub struct FaultOutcome {
     /// The class.
     pub class: FaultClass,
@@ -82,8 +83,12 @@ pub struct FaultOutcome {
     /// values for good (s); `None` if they never are within the window.
     pub recovery_s: Option<f64>,
     /// The fault-free run's ĉ, k̂ when the fault starts (aggregates, SI).
+    // Non-finite when not computable: written null (serde_json), so the schema allows it.
+    #[schemars(with = "[Option<f64>; 2]")]
     pub before: [f64; 2],
     /// ĉ, k̂ at the end of the window.
+    // Non-finite when not computable: written null (serde_json), so the schema allows it.
+    #[schemars(with = "[Option<f64>; 2]")]
     pub after: [f64; 2],
 }
 
@@ -281,4 +286,17 @@ pub fn run_fault(class: FaultClass, sample_rate_hz: f64, seed: u64) -> FaultOutc
         before,
         after: compared.last().map_or([f64::NAN; 2], |v| [v.1, v.2]),
     }
+}
+
+/// The faults report's `schema_version`.
+pub const SCHEMA_VERSION: u32 = 1;
+
+/// The report of `visco faults --json FILE.json`: every run, class by class, seed by seed.
+#[derive(Clone, Debug, Serialize, JsonSchema)]
+pub struct FaultsReport {
+    /// Version of this report's layout (1): raised when a field is removed or renamed or changes
+    /// meaning or unit; adding a field keeps it.
+    pub schema_version: u32,
+    /// Each run's outcome.
+    pub runs: Vec<FaultOutcome>,
 }

@@ -39,25 +39,36 @@
 use super::metrics::{self, ImageErrors, PAPER_MAX};
 use super::{run_dive, run_sve, ExperimentError, Setup};
 use crate::sample::Sample;
+use schemars::JsonSchema;
 use serde::Serialize;
 use visco_core::geometry::contact_radius;
 
 /// One point of a sweep.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, JsonSchema)]
 pub struct SweepPoint {
     /// SVE line period or DIVE tap time (s).
     pub period_s: f64,
     /// Map pixels per second of imaging time.
     pub pixels_per_s: f64,
     /// RMS error h, c, k (% of max).
+    // Non-finite when not computable: written null (serde_json), so the schema allows it.
+    #[schemars(with = "[Option<f64>; 3]")]
     pub rms_error_pct: [f64; 3],
     /// Largest error h, c, k (% of max).
+    // Non-finite when not computable: written null (serde_json), so the schema allows it.
+    #[schemars(with = "[Option<f64>; 3]")]
     pub max_error_pct: [f64; 3],
     /// Largest error h, c, k away from steep topography (% of max).
+    // Non-finite when not computable: written null (serde_json), so the schema allows it.
+    #[schemars(with = "[Option<f64>; 3]")]
     pub max_error_not_steep_pct: [f64; 3],
     /// RMS error h, c, k with the paper's scaling n = |W| (needs the simulator's contact count).
+    // Non-finite when not computable: written null (serde_json), so the schema allows it.
+    #[schemars(with = "[Option<f64>; 3]")]
     pub paper_rms_error_pct: [f64; 3],
     /// The largest of the three RMS errors.
+    // Non-finite when not computable: written null (serde_json), so the schema allows it.
+    #[schemars(with = "Option<f64>")]
     pub worst_rms_pct: f64,
     /// Pixels or taps that failed.
     pub failed: usize,
@@ -261,4 +272,27 @@ pub fn fastest_meeting_goal(points: &[SweepPoint]) -> Option<&SweepPoint> {
         .iter()
         .filter(|p| meets_goal(p))
         .max_by(|a, b| a.pixels_per_s.total_cmp(&b.pixels_per_s))
+}
+
+/// The sweep report's `schema_version`.
+pub const SCHEMA_VERSION: u32 = 1;
+
+/// `sweep.json` of `visco sweep --out DIR`.
+#[derive(Clone, Debug, Default, Serialize, JsonSchema)]
+pub struct SweepReport {
+    /// Version of this report's layout (1): raised when a field is removed or renamed or changes
+    /// meaning or unit; adding a field keeps it.
+    pub schema_version: u32,
+    /// SVE: one point per line period.
+    pub sve: Vec<SweepPoint>,
+    /// DIVE: one point per tap time.
+    pub dive: Vec<SweepPoint>,
+    /// The fastest SVE point that meets the goal, if any.
+    pub sve_fastest_meeting_goal: Option<SweepPoint>,
+    /// The fastest DIVE point that meets the goal, if any.
+    pub dive_fastest_meeting_goal: Option<SweepPoint>,
+    /// The excitation study's candidates.
+    pub excitation: Vec<crate::experiment::excitation_study::Candidate>,
+    /// How to read the figures.
+    pub notes: Vec<String>,
 }

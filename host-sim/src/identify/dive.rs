@@ -42,11 +42,12 @@ use visco_core::{Cantilever, DiveRegressor};
 
 use super::error::{IdentifyError, Result};
 use super::files::{push_num, Staged};
-use super::json::Json;
 use super::replay::{self, BlockTrack, FoundContact, FreeContact, PhiProbe, PhiTypical, Smoother};
+use super::report as rep;
 use super::signal::Summary;
-use super::{cantilever_json, Options, Outputs};
+use super::{Options, Outputs};
 use crate::recording::{RecordingReader, Row};
+use crate::report::Num;
 use crate::sample::Sample;
 
 /// Rows of the series CSV at most (the whole recording, decimated).
@@ -136,56 +137,50 @@ impl DiveTap {
         }
     }
 
-    fn to_json(&self, t_of: impl Fn(u64) -> f64) -> Json {
-        let rows = |r: &Range<u64>| vec![r.start as f64 + 1.0, r.end as f64];
-        let mut j = Json::obj()
-            .with("index", self.index)
-            .with("tap", self.label)
-            .with("rows", rows(&self.rows))
-            .with("t_start_s", self.t_span_s.0)
-            .with("t_end_s", self.t_span_s.1)
-            .with("x_m", self.x_m)
-            .with("y_m", self.y_m)
-            .with("contact", self.contact.is_some());
-        if let Some(c) = &self.contact {
-            j.set("contact_height_m", self.contact_height_m);
-            j.set("contact_t_s", t_of(c.row));
-            j.set("c_ns_per_m", self.c_ns_per_m);
-            j.set("k_n_per_m", self.k_n_per_m);
-            j.set("offset_n", self.offset_n);
-            j.set("bed_height_m", self.bed_height_m);
-            j.set("surface_height_m", self.surface_height_m);
-            j.set("depth_m", self.depth_m);
-            j.set(
-                "depth_range_m",
-                vec![self.depth_range_m.0, self.depth_range_m.1],
-            );
-            j.set("elements_under_tip", self.elements);
-            j.set("mean_sag_m", self.mean_sag_m);
-            j.set("c_element_ns_per_m", self.c_element_ns_per_m);
-            j.set("k_element_n_per_m", self.k_element_n_per_m);
-            j.set("free_deflection_m", c.d0_m);
-            if let (Some(w), Some(r)) = (&self.window, &self.readout) {
-                j.set(
-                    "dwell",
-                    Json::obj()
-                        .with("rows", rows(w))
-                        .with("t_start_s", t_of(w.start))
-                        .with("t_end_s", t_of(w.end.saturating_sub(1)))
-                        .with("hold_z_m", self.hold_z_m)
-                        .with("readout_t_start_s", t_of(r.start))
-                        .with("readout_samples", self.samples),
-                );
-            }
-        } else {
-            j.set("contact_height_m", Json::Null);
-            j.set("c_ns_per_m", Json::Null);
-            j.set("k_n_per_m", Json::Null);
+    fn to_json(&self, t_of: impl Fn(u64) -> f64) -> rep::DiveTapJson {
+        let rows = |r: &Range<u64>| rep::rows(r.start, r.end);
+        // Without contact there is nothing to estimate: the three headline values are null.
+        let if_contact = |v: f64| Num(if self.contact.is_some() { v } else { f64::NAN });
+        rep::DiveTapJson {
+            index: self.index as u64,
+            tap: self.label,
+            rows: rows(&self.rows),
+            t_start_s: self.t_span_s.0,
+            t_end_s: self.t_span_s.1,
+            x_m: self.x_m.into(),
+            y_m: self.y_m.into(),
+            contact: self.contact.is_some(),
+            contact_height_m: if_contact(self.contact_height_m),
+            c_ns_per_m: if_contact(self.c_ns_per_m),
+            k_n_per_m: if_contact(self.k_n_per_m),
+            at_contact: self.contact.as_ref().map(|c| rep::DiveTapContact {
+                contact_t_s: t_of(c.row),
+                offset_n: self.offset_n.into(),
+                bed_height_m: self.bed_height_m.into(),
+                surface_height_m: self.surface_height_m.into(),
+                depth_m: self.depth_m.into(),
+                depth_range_m: [self.depth_range_m.0.into(), self.depth_range_m.1.into()],
+                elements_under_tip: self.elements.into(),
+                mean_sag_m: self.mean_sag_m.into(),
+                c_element_ns_per_m: self.c_element_ns_per_m.into(),
+                k_element_n_per_m: self.k_element_n_per_m.into(),
+                free_deflection_m: c.d0_m.into(),
+                dwell: match (&self.window, &self.readout) {
+                    (Some(w), Some(r)) => Some(rep::Dwell {
+                        rows: rows(w),
+                        t_start_s: t_of(w.start),
+                        t_end_s: t_of(w.end.saturating_sub(1)),
+                        hold_z_m: self.hold_z_m.into(),
+                        readout_t_start_s: t_of(r.start),
+                        readout_samples: self.samples,
+                    }),
+                    _ => None,
+                },
+            }),
+            rms_misfit_m: self.rms_misfit_m.into(),
+            rms_misfit_dwell_m: self.rms_misfit_dwell_m.into(),
+            flags: self.flags.clone(),
         }
-        j.set("rms_misfit_m", self.rms_misfit_m);
-        j.set("rms_misfit_dwell_m", self.rms_misfit_dwell_m);
-        j.set("flags", self.flags.clone());
-        j
     }
 }
 
@@ -193,7 +188,7 @@ impl DiveTap {
 #[derive(Debug, Clone)]
 pub struct DiveResult {
     /// The mode-specific part of the report.
-    pub json: Json,
+    pub json: rep::DiveReport,
     /// RMS misfit over the whole recording (m).
     pub rms_misfit_m: f64,
     /// The taps.
@@ -300,21 +295,20 @@ impl Clip {
         self.low.1 >= Self::ROWS || self.high.1 >= Self::ROWS
     }
 
-    /// For the report.
-    pub fn to_json(&self) -> Json {
+    /// For the report: `None` when nothing is clipped.
+    pub fn to_json(&self) -> Option<rep::Clipped> {
         if !self.any() {
-            return Json::Null;
+            return None;
         }
-        Json::obj()
-            .with("low_m", self.low.0)
-            .with("rows_at_low", self.low.1)
-            .with("high_m", self.high.0)
-            .with("rows_at_high", self.high.1)
-            .with(
-                "note",
-                "rows at exactly the extreme deflection (ADC at full scale) are not \
-                 measurements: the estimator skips them, as the controller skips saturated input",
-            )
+        Some(rep::Clipped {
+            low_m: self.low.0,
+            rows_at_low: self.low.1,
+            high_m: self.high.0,
+            rows_at_high: self.high.1,
+            note: "rows at exactly the extreme deflection (ADC at full scale) are not \
+                   measurements: the estimator skips them, as the controller skips saturated input"
+                .into(),
+        })
     }
 }
 
@@ -841,82 +835,59 @@ pub(crate) fn identify(
         for t in &with {
             s.add(f(t));
         }
-        Json::obj()
-            .with("mean", s.mean())
-            .with("std", s.std())
-            .with("min", if s.n > 0 { s.min } else { f64::NAN })
-            .with("max", if s.n > 0 { s.max } else { f64::NAN })
+        rep::Stat {
+            mean: s.mean().into(),
+            std: s.std().into(),
+            min: Num(if s.n > 0 { s.min } else { f64::NAN }),
+            max: Num(if s.n > 0 { s.max } else { f64::NAN }),
+        }
     };
     let (_, _, counting) = element_count(opts, 0.0, 0.0, r, r);
-    let j = Json::obj()
-        .with(
-            "model",
-            "cantilever first mode (2) on an aggregate Kelvin–Voigt contact (10), identified per \
-             tap with the DIVE regression",
-        )
-        .with(
-            "cantilever",
-            cantilever_json(meta).with("used_from", cant_source),
-        )
-        .with("tip_radius_m", r)
-        .with("sample_rate_hz", fs)
-        .with(
-            "regressor",
-            match opts.regressor {
-                DiveRegressor::Offset => "offset: θ = [c, k, k·(h_bed − z₀)], no correction (32)",
-                DiveRegressor::Paper => "paper (13): θ = [c, k], δ = h − Z, k per element by (32)",
-            },
-        )
-        .with(
-            "segmentation",
-            if sv.by_tap_column {
-                "by the tap column"
-            } else {
-                "by contact detection (from one release of the sample to the next)"
-            },
-        )
-        .with(
-            "per_element",
-            Json::obj()
-                .with("element_pitch_m", opts.element_pitch_m)
-                .with("count", counting)
-                .with(
-                    "lattice_origin_m",
-                    opts.lattice_origin_m.map(|o| vec![o[0], o[1]]),
-                )
-                .with(
-                    "how",
-                    "n elements under the tip at the read-out depth (continuum π a²/pitch² or \
-                     the lattice's sites), c/n, and k/n (offset form) or (k/n)·δ/(δ − s̄) (32)",
-                ),
-        )
-        .with(
-            "replay",
-            replay::observer_json(&ocfg, replay::DIVE_MEMORY_S, &ocfg.dive_estimator)
-                .with("readout_s", opts.readout_s)
-                .with(
-                    "dwell",
-                    "the samples around the deepest slow tip position (two 1 ms boxcars) within \
-                     5 % of the depth (≥ 5 nm): the hold",
-                ),
-        )
-        .with(
-            "taps",
-            Json::Arr(taps.iter().map(|t| t.to_json(t_of)).collect()),
-        )
-        .with(
-            "summary",
-            Json::obj()
-                .with("taps", taps.len())
-                .with("with_estimates", with.len())
-                .with("k_n_per_m", stat(&|t| t.k_n_per_m))
-                .with("c_ns_per_m", stat(&|t| t.c_ns_per_m))
-                .with("k_element_n_per_m", stat(&|t| t.k_element_n_per_m))
-                .with("c_element_ns_per_m", stat(&|t| t.c_element_ns_per_m))
-                .with("contact_height_m", stat(&|t| t.contact_height_m)),
-        )
-        .with("deflection_clipped", sv.clip.to_json())
-        .with("notes", {
+    let j = rep::DiveReport {
+        model: "cantilever first mode (2) on an aggregate Kelvin–Voigt contact (10), identified \
+                per tap with the DIVE regression"
+            .into(),
+        cantilever: rep::CantileverJson::new(meta).used_from(cant_source),
+        tip_radius_m: r,
+        sample_rate_hz: fs,
+        regressor: match opts.regressor {
+            DiveRegressor::Offset => "offset: θ = [c, k, k·(h_bed − z₀)], no correction (32)",
+            DiveRegressor::Paper => "paper (13): θ = [c, k], δ = h − Z, k per element by (32)",
+        }
+        .into(),
+        segmentation: if sv.by_tap_column {
+            "by the tap column"
+        } else {
+            "by contact detection (from one release of the sample to the next)"
+        }
+        .into(),
+        per_element: rep::DivePerElement {
+            element_pitch_m: opts.element_pitch_m,
+            count: counting.into(),
+            lattice_origin_m: opts.lattice_origin_m,
+            how: "n elements under the tip at the read-out depth (continuum π a²/pitch² or \
+                  the lattice's sites), c/n, and k/n (offset form) or (k/n)·δ/(δ − s̄) (32)"
+                .into(),
+        },
+        replay: rep::DiveReplay {
+            observer: replay::observer_json(&ocfg, replay::DIVE_MEMORY_S, &ocfg.dive_estimator),
+            readout_s: opts.readout_s,
+            dwell: "the samples around the deepest slow tip position (two 1 ms boxcars) within \
+                    5 % of the depth (≥ 5 nm): the hold"
+                .into(),
+        },
+        taps: taps.iter().map(|t| t.to_json(t_of)).collect(),
+        summary: rep::DiveSummary {
+            taps: taps.len() as u64,
+            with_estimates: with.len() as u64,
+            k_n_per_m: stat(&|t| t.k_n_per_m),
+            c_ns_per_m: stat(&|t| t.c_ns_per_m),
+            k_element_n_per_m: stat(&|t| t.k_element_n_per_m),
+            c_element_ns_per_m: stat(&|t| t.c_element_ns_per_m),
+            contact_height_m: stat(&|t| t.contact_height_m),
+        },
+        deflection_clipped: sv.clip.to_json(),
+        notes: {
             let mut notes: Vec<String> = Vec::new();
             let none = taps.iter().filter(|t| t.contact.is_none()).count();
             if none > 0 {
@@ -938,24 +909,21 @@ pub(crate) fn identify(
                 );
             }
             notes
-        })
-        .with("rms_misfit_m", total.rms())
-        .with(
-            "fit",
-            Json::obj()
-                .with(
-                    "model",
-                    "the plant (cantilever, sphere, element bed) on a flat bed with each tap's \
-                     per-element values and surface, driven by the recorded U, plus the tap's \
-                     free deflection; noise and converters off",
-                )
-                .with("rms_misfit_m", total.rms())
-                .with("series_csv", series_path.display().to_string())
-                .with("series_stride_rows", stride)
-                .with("detail_csv", detail_path.map(|p| p.display().to_string()))
-                .with("figure_png", png.display().to_string())
-                .with("detail_png", detail_png.map(|p| p.display().to_string())),
-        );
+        },
+        rms_misfit_m: total.rms().into(),
+        fit: rep::DiveFit {
+            model: "the plant (cantilever, sphere, element bed) on a flat bed with each tap's \
+                    per-element values and surface, driven by the recorded U, plus the tap's \
+                    free deflection; noise and converters off"
+                .into(),
+            rms_misfit_m: total.rms().into(),
+            series_csv: series_path.display().to_string(),
+            series_stride_rows: stride,
+            detail_csv: detail_path.map(|p| p.display().to_string()),
+            figure_png: png.display().to_string(),
+            detail_png: detail_png.map(|p| p.display().to_string()),
+        },
+    };
     Ok(DiveResult {
         json: j,
         rms_misfit_m: total.rms(),

@@ -47,10 +47,10 @@ use std::ops::Range;
 use std::path::Path;
 
 use super::error::{IdentifyError, Result};
-use super::json::Json;
+use super::report as rep;
 use super::signal::{cap_volume, contact_area, minimize, moving_average, robust_sigma, FohLowPass};
 use super::Options;
-use crate::recording::Recording;
+use crate::recording::{Metadata, Recording};
 
 /// The free deflection `D₀(U) = offset + tilt·(U − u_ref)`.
 #[derive(Clone, Debug, PartialEq)]
@@ -719,168 +719,137 @@ fn dynamics_bounds(rec: &Recording, z: &[f64], d_s: &[f64]) -> Dynamics {
 }
 
 impl ForceCurveFit {
-    /// The report's mode-specific part.
-    pub fn to_json(&self, rec: &Recording) -> Json {
+    /// The report's mode-specific part (the fit's file names and the notes are the caller's).
+    pub fn to_report(&self, rec: &Recording, meta: &Metadata) -> rep::ForceCurveReport {
         let b = &self.baseline;
         let dyn_ = &self.dynamics;
-        let mut j = Json::obj()
-            .with(
-                "model",
-                "quasi-static sphere on a Kelvin–Voigt element bed: F = k_a·V(δ) + c_a·A(δ)·dδ/dt, \
-                 V = πδ²(R − δ/3) (πR²(δ − R/3) past the equator), A = πa², F = −K·(D − D₀(U))",
-            )
-            .with(
-                "cantilever_dynamics",
-                Json::obj()
-                    .with("neglected", dyn_.neglected)
-                    .with(
-                        "why",
-                        format!(
-                            "{}: the largest inertial force M·|Z̈| ({:.2e} N) and damping force \
-                             C·|Ḋ| ({:.2e} N) bend the lever by {:.2} times the deflection \
-                             noise ({:.2e} m) and are {:.1e} of the force range ({:.2e} N); \
-                             f0 = {} Hz, Q = {} ({})",
-                            if dyn_.neglected {
-                                "quasi-static, the noise hides the lever's dynamics"
-                            } else {
-                                "NOT quasi-static, the lever's dynamics exceed the noise and \
-                                 the fit leaves them out"
-                            },
-                            dyn_.inertial_n,
-                            dyn_.damping_n,
-                            dyn_.to_noise,
-                            self.baseline.noise_m,
-                            dyn_.to_force_range,
-                            self.force_range_n,
-                            dyn_.f0_hz,
-                            dyn_.q,
-                            dyn_.source
-                        ),
-                    )
-                    .with("to_noise", dyn_.to_noise)
-                    .with("to_force_range", dyn_.to_force_range)
-                    .with("inertial_force_max_n", dyn_.inertial_n)
-                    .with("damping_force_max_n", dyn_.damping_n)
-                    .with("f0_hz", dyn_.f0_hz)
-                    .with("q", dyn_.q)
-                    .with("f0_q_source", dyn_.source),
-            )
-            .with(
-                "approach",
-                Json::obj()
-                    .with("rows", vec![self.approach.start as f64 + 1.0, self.approach.end as f64])
-                    .with("t_start_s", rec.t_s[self.approach.start])
-                    .with("t_end_s", rec.t_s[self.approach.end - 1]),
-            )
-            .with(
-                "baseline",
-                Json::obj()
-                    .with("kind", if b.linear { "offset + linear tilt in U" } else { "offset" })
-                    .with("offset_m", b.offset_m)
-                    .with("tilt_m_per_m", b.tilt)
-                    .with("u_ref_m", b.u_ref_m)
-                    .with("noise_m", b.noise_m)
-                    .with(
-                        "free_rows",
-                        vec![b.free_rows.start as f64 + 1.0, b.free_rows.end as f64],
-                    ),
-            )
-            .with(
-                "contact",
-                Json::obj()
-                    .with("height_m", self.contact_height_m)
-                    .with("row", self.contact_row + 1)
-                    .with("t_s", self.contact_t_s)
-                    .with("u_m", self.contact_u_m)
-                    .with("threshold_row", self.threshold_row + 1)
-                    .with(
-                        "method",
-                        "baseline on the free approach, last crossing of n·σ, refined by the \
-                         least-squares residual of the full Kelvin–Voigt fit",
-                    )
-                    .with("inside_approach", true),
-            )
-            .with("k_a_n_per_m3", self.k_a_n_per_m3)
-            .with(
-                "fit_rows",
-                "the approach and the retract while the sample pushes; holds and pull-off are \
-                 left to the misfit",
-            )
-            .with("approach_force_depth_exponent", self.onset_exponent)
-            .with("c_a_ns_per_m3", self.c_a_ns_per_m3)
-            .with(
-                "relaxation_time_s",
-                if self.k_a_n_per_m3 > 0.0 {
-                    self.c_a_ns_per_m3 / self.k_a_n_per_m3
-                } else {
-                    f64::NAN
-                },
-            )
-            .with("max_depth_m", self.max_depth_m)
-            .with("max_force_n", self.max_force_n)
-            .with("force_range_n", self.force_range_n)
-            .with("element_pitch_m", self.pitch_m)
-            .with("filter_lambda_s", self.lambda_s);
-        if let Some((diff, range)) = self.vendor_force {
-            j.set(
-                "vendor_force",
-                Json::obj()
-                    .with("column", "force_vendor_n")
-                    .with("max_abs_difference_n", diff)
-                    .with("max_abs_vendor_n", range)
-                    .with("matches", diff <= 1e-9 * range.max(1e-30)),
-            );
-        }
-        j
-    }
-
-    /// The one "tap" of a force curve: the values at the deepest point.
-    pub fn tap_json(&self) -> Json {
         let p2 = self.pitch_m * self.pitch_m;
-        Json::obj()
-            .with("contact_height_m", self.contact_height_m)
-            .with("c_ns_per_m", self.c_ns_per_m)
-            .with("k_n_per_m", self.k_n_per_m)
-            .with("depth_m", self.max_depth_m)
-            .with("elements_under_tip", self.elements_at_max)
-            .with("c_element_ns_per_m", self.c_a_ns_per_m3 * p2)
-            .with("k_element_n_per_m", self.k_a_n_per_m3 * p2)
-            .with(
-                "note",
-                "aggregate values are the tangent k = k_a·A and c = c_a·A at the deepest point",
-            )
-    }
-
-    /// The fit's summary.
-    pub fn fit_json(&self) -> Json {
-        Json::obj()
-            .with(
-                "model",
-                "the quasi-static law with the identified h, k_a, c_a and baseline, driven by the \
-                 recorded U",
-            )
-            .with("rms_misfit_m", self.rms_misfit_m)
-            .with("rms_misfit_contact_m", self.rms_misfit_contact_m)
-            .with(
-                "rms_misfit_over_noise",
-                self.rms_misfit_m / self.baseline.noise_m,
-            )
-            .with("deflection_range_m", self.deflection_range_m)
-            .with(
-                "segments",
-                Json::Arr(
-                    self.segments
-                        .iter()
-                        .map(|(n, k, rows, rms)| {
-                            Json::obj()
-                                .with("segment", *n as f64)
-                                .with("kind", k.as_str())
-                                .with("rows", *rows)
-                                .with("rms_misfit_m", *rms)
-                        })
-                        .collect(),
+        rep::ForceCurveReport {
+            model:
+                "quasi-static sphere on a Kelvin–Voigt element bed: F = k_a·V(δ) + c_a·A(δ)·dδ/dt, \
+                 V = πδ²(R − δ/3) (πR²(δ − R/3) past the equator), A = πa², F = −K·(D − D₀(U))"
+                    .into(),
+            cantilever_dynamics: rep::CantileverDynamics {
+                neglected: dyn_.neglected,
+                why: format!(
+                    "{}: the largest inertial force M·|Z̈| ({:.2e} N) and damping force \
+                     C·|Ḋ| ({:.2e} N) bend the lever by {:.2} times the deflection \
+                     noise ({:.2e} m) and are {:.1e} of the force range ({:.2e} N); \
+                     f0 = {} Hz, Q = {} ({})",
+                    if dyn_.neglected {
+                        "quasi-static, the noise hides the lever's dynamics"
+                    } else {
+                        "NOT quasi-static, the lever's dynamics exceed the noise and \
+                         the fit leaves them out"
+                    },
+                    dyn_.inertial_n,
+                    dyn_.damping_n,
+                    dyn_.to_noise,
+                    self.baseline.noise_m,
+                    dyn_.to_force_range,
+                    self.force_range_n,
+                    dyn_.f0_hz,
+                    dyn_.q,
+                    dyn_.source
                 ),
-            )
+                to_noise: dyn_.to_noise.into(),
+                to_force_range: dyn_.to_force_range.into(),
+                inertial_force_max_n: dyn_.inertial_n.into(),
+                damping_force_max_n: dyn_.damping_n.into(),
+                f0_hz: dyn_.f0_hz.into(),
+                q: dyn_.q.into(),
+                f0_q_source: dyn_.source.into(),
+            },
+            approach: rep::RowSpan {
+                rows: rep::rows(self.approach.start as u64, self.approach.end as u64),
+                t_start_s: rec.t_s[self.approach.start],
+                t_end_s: rec.t_s[self.approach.end - 1],
+            },
+            baseline: rep::Baseline {
+                kind: if b.linear {
+                    "offset + linear tilt in U"
+                } else {
+                    "offset"
+                }
+                .into(),
+                offset_m: b.offset_m.into(),
+                tilt_m_per_m: b.tilt.into(),
+                u_ref_m: b.u_ref_m.into(),
+                noise_m: b.noise_m.into(),
+                free_rows: rep::rows(b.free_rows.start as u64, b.free_rows.end as u64),
+            },
+            contact: rep::ForceCurveContact {
+                height_m: self.contact_height_m.into(),
+                row: self.contact_row as u64 + 1,
+                t_s: self.contact_t_s.into(),
+                u_m: self.contact_u_m.into(),
+                threshold_row: self.threshold_row as u64 + 1,
+                method: "baseline on the free approach, last crossing of n·σ, refined by the \
+                         least-squares residual of the full Kelvin–Voigt fit"
+                    .into(),
+                inside_approach: true,
+            },
+            k_a_n_per_m3: self.k_a_n_per_m3.into(),
+            fit_rows: "the approach and the retract while the sample pushes; holds and pull-off \
+                       are left to the misfit"
+                .into(),
+            approach_force_depth_exponent: self.onset_exponent.into(),
+            c_a_ns_per_m3: self.c_a_ns_per_m3.into(),
+            relaxation_time_s: if self.k_a_n_per_m3 > 0.0 {
+                self.c_a_ns_per_m3 / self.k_a_n_per_m3
+            } else {
+                f64::NAN
+            }
+            .into(),
+            max_depth_m: self.max_depth_m.into(),
+            max_force_n: self.max_force_n.into(),
+            force_range_n: self.force_range_n.into(),
+            element_pitch_m: self.pitch_m,
+            filter_lambda_s: self.lambda_s,
+            vendor_force: self.vendor_force.map(|(diff, range)| rep::VendorForce {
+                column: "force_vendor_n".into(),
+                max_abs_difference_n: diff.into(),
+                max_abs_vendor_n: range.into(),
+                matches: diff <= 1e-9 * range.max(1e-30),
+            }),
+            cantilever: rep::CantileverJson::new(meta),
+            tip_radius_m: meta.tip_radius_m,
+            taps: vec![rep::ForceCurveTap {
+                contact_height_m: self.contact_height_m.into(),
+                c_ns_per_m: self.c_ns_per_m.into(),
+                k_n_per_m: self.k_n_per_m.into(),
+                depth_m: self.max_depth_m.into(),
+                elements_under_tip: self.elements_at_max.into(),
+                c_element_ns_per_m: (self.c_a_ns_per_m3 * p2).into(),
+                k_element_n_per_m: (self.k_a_n_per_m3 * p2).into(),
+                note: "aggregate values are the tangent k = k_a·A and c = c_a·A at the deepest \
+                       point"
+                    .into(),
+            }],
+            rms_misfit_m: self.rms_misfit_m.into(),
+            fit: rep::ForceCurveFitJson {
+                model: "the quasi-static law with the identified h, k_a, c_a and baseline, \
+                        driven by the recorded U"
+                    .into(),
+                rms_misfit_m: self.rms_misfit_m.into(),
+                rms_misfit_contact_m: self.rms_misfit_contact_m.into(),
+                rms_misfit_over_noise: (self.rms_misfit_m / self.baseline.noise_m).into(),
+                deflection_range_m: self.deflection_range_m.into(),
+                segments: self
+                    .segments
+                    .iter()
+                    .map(|(n, k, rows, rms)| rep::SegmentFit {
+                        segment: *n,
+                        kind: k.clone(),
+                        rows: *rows as u64,
+                        rms_misfit_m: (*rms).into(),
+                    })
+                    .collect(),
+                series_csv: String::new(),
+                figure_png: String::new(),
+            },
+            notes: Vec::new(),
+        }
     }
 
     /// The recorded and simulated series, one row per sample.

@@ -30,15 +30,15 @@ pub mod error;
 pub mod figures;
 pub mod files;
 pub mod force_curve;
-pub mod json;
 pub mod replay;
+pub mod report;
 pub mod signal;
 pub mod sve;
 
 use std::path::{Path, PathBuf};
 
 pub use error::{IdentifyError, Result};
-pub use json::Json;
+pub use report::{IdentifyReport, ModeReport};
 
 use crate::recording::{Metadata, Mode, Recording, RecordingReader};
 use files::Staged;
@@ -132,8 +132,8 @@ pub enum Outcome {
 pub struct Report {
     /// The recording's mode.
     pub mode: Mode,
-    /// The JSON written.
-    pub json: Json,
+    /// The report written (as JSON: [`crate::report::to_pretty`]).
+    pub json: IdentifyReport,
     /// Every file written, the JSON last.
     pub files: Vec<PathBuf>,
     /// RMS of recorded − simulated D over the whole recording (m).
@@ -178,12 +178,7 @@ pub fn identify(path: &Path, opts: &Options) -> Result<Report> {
 
 fn run(path: &Path, meta: &Metadata, opts: &Options, out: Outputs) -> Result<Report> {
     let mut staged = Staged::new();
-    let mut json = Json::obj()
-        .with("recording", path.display().to_string())
-        .with("mode", meta.mode.as_str())
-        .with("visco_version", env!("CARGO_PKG_VERSION"))
-        .with("units", units_json());
-    let (mode_json, rms, outcome) = match meta.mode {
+    let (result, rms, outcome) = match meta.mode {
         Mode::ForceCurve => {
             // Force curves are read whole (they are small: thousands to tens of thousands of
             // rows); a file this large is a log, not a force curve.
@@ -218,15 +213,9 @@ fn run(path: &Path, meta: &Metadata, opts: &Options, out: Outputs) -> Result<Rep
                 ),
                 &env,
             )?;
-            let mut j = fit.to_json(&rec);
-            j.set("cantilever", cantilever_json(meta));
-            j.set("tip_radius_m", meta.tip_radius_m);
-            j.set("taps", vec![fit.tap_json()]);
-            j.set("rms_misfit_m", fit.rms_misfit_m);
-            let mut fj = fit.fit_json();
-            fj.set("series_csv", series.display().to_string());
-            fj.set("figure_png", png.display().to_string());
-            j.set("fit", fj);
+            let mut j = fit.to_report(&rec, meta);
+            j.fit.series_csv = series.display().to_string();
+            j.fit.figure_png = png.display().to_string();
             let mut notes = fit.notes.clone();
             let d = &fit.dynamics;
             notes.insert(
@@ -247,36 +236,42 @@ fn run(path: &Path, meta: &Metadata, opts: &Options, out: Outputs) -> Result<Rep
                     )
                 },
             );
-            j.set("notes", notes);
+            j.notes = notes;
             let rms = fit.rms_misfit_m;
-            (j, rms, Outcome::ForceCurve(Box::new(fit)))
+            (
+                ModeReport::ForceCurve(Box::new(j)),
+                rms,
+                Outcome::ForceCurve(Box::new(fit)),
+            )
         }
         Mode::Dive => {
             let r = dive::identify(path, opts, &out, &mut staged)?;
             let j = r.json.clone();
             let rms = r.rms_misfit_m;
-            (j, rms, Outcome::Dive(r))
+            (ModeReport::Dive(Box::new(j)), rms, Outcome::Dive(r))
         }
         Mode::Sve => {
             let r = sve::identify(path, opts, &out, &mut staged)?;
             let j = r.json.clone();
             let rms = r.rms_misfit_m;
-            (j, rms, Outcome::Sve(r))
+            (ModeReport::Sve(Box::new(j)), rms, Outcome::Sve(r))
         }
     };
-    if let Json::Obj(items) = mode_json {
-        for (k, v) in items {
-            json.set(&k, v);
-        }
-    }
-    let mut files: Vec<Json> = staged
+    let mut files: Vec<String> = staged
         .paths()
         .iter()
-        .map(|p| Json::from(p.display().to_string()))
+        .map(|p| p.display().to_string())
         .collect();
-    files.push(Json::from(opts.json.display().to_string()));
-    json.set("files", Json::Arr(files));
-    staged.write(&opts.json, &json.to_pretty())?;
+    files.push(opts.json.display().to_string());
+    let json = IdentifyReport {
+        schema_version: report::SCHEMA_VERSION,
+        recording: path.display().to_string(),
+        visco_version: env!("CARGO_PKG_VERSION").to_string(),
+        units: report::Units::default(),
+        result,
+        files,
+    };
+    staged.write(&opts.json, &crate::report::to_pretty(&json))?;
     let files = staged.commit()?;
     Ok(Report {
         mode: meta.mode,
@@ -285,38 +280,4 @@ fn run(path: &Path, meta: &Metadata, opts: &Options, out: Outputs) -> Result<Rep
         rms_misfit_m: rms,
         outcome,
     })
-}
-
-/// The unit suffixes of the report's keys.
-fn units_json() -> Json {
-    Json::obj()
-        .with("_m", "metres")
-        .with("_s", "seconds")
-        .with("_hz", "hertz")
-        .with("_n", "newtons")
-        .with("_n_per_m", "N/m")
-        .with("_ns_per_m", "N·s/m")
-        .with(
-            "_n_per_m3",
-            "N/m³: per-area spring of the element bed (k_element/pitch²)",
-        )
-        .with(
-            "_ns_per_m3",
-            "N·s/m³: per-area damper of the element bed (c_element/pitch²)",
-        )
-        .with("_kg", "kilograms")
-        .with(
-            "rows",
-            "1-based data rows of the recording (line numbers minus the header)",
-        )
-}
-
-/// The cantilever as the recording gives it.
-pub(crate) fn cantilever_json(meta: &Metadata) -> Json {
-    Json::obj()
-        .with("k_n_per_m", meta.cantilever_k_n_per_m)
-        .with("c_ns_per_m", meta.cantilever_c_ns_per_m)
-        .with("m_kg", meta.cantilever_m_kg)
-        .with("f0_hz", meta.cantilever_f0_hz)
-        .with("q", meta.cantilever_q)
 }

@@ -11,7 +11,7 @@ use visco_core::regressor::{Regressor, RegressorParams};
 use visco_core::{units, Cantilever, DiveRegressor};
 
 use super::error::{IdentifyError, Result};
-use super::json::Json;
+use super::report::{ContactDetectorJson, EstimatorJson, Observer};
 use crate::plant::{Plant, PlantConfig, Travel};
 use crate::recording::Metadata;
 use crate::sample::Sample;
@@ -241,29 +241,23 @@ pub fn observer_config(
     }
 }
 
-/// The observer configuration as JSON (what the replay ran with).
-pub fn observer_json(c: &ObserverConfig, mode_memory_s: f64, est: &EstimatorConfig) -> Json {
-    Json::obj()
-        .with("prefilter_lambda_s", c.lambda_s)
-        .with(
-            "estimator",
-            Json::obj()
-                .with(
-                    "law",
-                    "least squares with forgetting (20)–(25), exact per sample",
-                )
-                .with("memory_s", mode_memory_s)
-                .with("alpha", est.alpha)
-                .with("p0", vec![est.p0[0], est.p0[1], est.p0[2]])
-                .with("r0", est.r0),
-        )
-        .with(
-            "contact_detector",
-            Json::obj()
-                .with("lowpass_hz", c.contact.lowpass_hz)
-                .with("gamma_m", c.contact.gamma_m)
-                .with("gamma_plus_m", c.contact.gamma_plus_m),
-        )
+/// The observer configuration for the report (what the replay ran with).
+pub fn observer_json(c: &ObserverConfig, mode_memory_s: f64, est: &EstimatorConfig) -> Observer {
+    Observer {
+        prefilter_lambda_s: c.lambda_s,
+        estimator: EstimatorJson {
+            law: "least squares with forgetting (20)–(25), exact per sample".into(),
+            memory_s: mode_memory_s,
+            alpha: est.alpha,
+            p0: est.p0,
+            r0: est.r0,
+        },
+        contact_detector: ContactDetectorJson {
+            lowpass_hz: c.contact.lowpass_hz,
+            gamma_m: c.contact.gamma_m,
+            gamma_plus_m: c.contact.gamma_plus_m,
+        },
+    }
 }
 
 /// A causal moving average applied twice (a triangle of 2W − 1 samples): the slow part of a

@@ -31,15 +31,16 @@ use visco_core::Cantilever;
 
 use super::error::{IdentifyError, Result};
 use super::files::{push_num, Staged};
-use super::json::Json;
 use super::replay::{self, FoundContact, FreeContact, PhiProbe, PhiTypical, Smoother};
+use super::report as rep;
 use super::signal::{apex_depth_from_effective, contact_area, Summary};
-use super::{cantilever_json, Options, Outputs};
+use super::{Options, Outputs};
 use crate::output::csv as output_csv;
 use crate::output::figure::{self, MapStyle, Quantity};
 use crate::output::gsf::{self, NanPolicy};
 use crate::output::map::{Grid, Map};
 use crate::recording::{RecordingReader, Row};
+use crate::report::nums;
 use crate::sample::Sample;
 
 /// Rows of the series CSV at most.
@@ -68,7 +69,7 @@ pub struct Pass {
 #[derive(Debug, Clone)]
 pub struct SveResult {
     /// The mode-specific part of the report.
-    pub json: Json,
+    pub json: rep::SveReport,
     /// RMS misfit over the whole recording (m).
     pub rms_misfit_m: f64,
     /// The contact that started the scan.
@@ -426,7 +427,7 @@ pub(crate) fn identify(
     // The maps through the output layer: CSV grid, Gwyddion file and figure per quantity.
     let grid = map_grid(&x_centres, &y_lines, dx);
     let regular = lines_regular(&y_lines);
-    let mut map_json = Json::obj();
+    let mut map_json = crate::report::Ordered::default();
     let title = path
         .file_name()
         .map_or(String::new(), |n| n.to_string_lossy().into_owned());
@@ -457,19 +458,20 @@ pub(crate) fn identify(
         let st = map.stats();
         let mut sm = Summary::default();
         v.iter().for_each(|x| sm.add(*x));
-        map_json.set(
-            name,
-            Json::obj()
-                .with("file", csv_path.display().to_string())
-                .with("gsf", gsf_path.display().to_string())
-                .with("png", png_path.display().to_string())
-                .with("unit", unit.as_str())
-                .with("valid_pixels", st.count)
-                .with("mean", st.mean)
-                .with("std", sm.std())
-                .with("min", st.min)
-                .with("max", st.max),
-        );
+        map_json.0.push((
+            name.clone(),
+            rep::MapJson {
+                file: csv_path.display().to_string(),
+                gsf: gsf_path.display().to_string(),
+                png: png_path.display().to_string(),
+                unit: unit.clone(),
+                valid_pixels: st.count as u64,
+                mean: st.mean.into(),
+                std: sm.std().into(),
+                min: st.min.into(),
+                max: st.max.into(),
+            },
+        ));
     }
     let empty = agg.iter().filter(|a| !a[1].is_finite()).count();
 
@@ -575,90 +577,64 @@ pub(crate) fn identify(
 
     let t0 = 0.0;
     let forward = passes.iter().filter(|p| p.dir > 0).count();
-    let j = Json::obj()
-        .with(
-            "model",
-            "cantilever first mode (2) on an aggregate Kelvin–Voigt contact (10), identified \
-             continuously with the decoupled SVE regression",
-        )
-        .with(
-            "cantilever",
-            cantilever_json(meta).with("used_from", cant_source),
-        )
-        .with("tip_radius_m", r)
-        .with("sample_rate_hz", fs)
-        .with(
-            "regressor",
-            "decoupled (16): w and φ = [−sZ/Λ, −Z/Λ] high-passed at f0/32, θ = [c, k]; \
-             ĥ = Z/Λ + F/k̂",
-        )
-        .with(
-            "contact",
-            Json::obj()
-                .with("row", contact.row + 1)
-                .with("t_s", t0 + contact.row as f64 / fs)
-                .with("height_m", contact.h_m)
-                .with("free_deflection_m", contact.d0_m)
-                .with("released_row", sv.release.map(|r| r + 1)),
-        )
-        .with(
-            "scan",
-            Json::obj()
-                .with("passes", passes.len())
-                .with("forward", forward)
-                .with("backward", passes.len() - forward)
-                .with("x_range_m", vec![x_lo, x_hi])
-                .with("y_range_m", vec![y_lo, y_hi])
-                .with(
-                    "lines_from",
-                    if opts.lines.is_some() {
-                        "--lines (equal bins)"
-                    } else {
-                        "the distinct y of the passes"
-                    },
-                ),
-        )
-        .with(
-            "grid",
-            Json::obj()
-                .with("pixels", nx)
-                .with("lines", ny)
-                .with("x_m", x_centres.clone())
-                .with("y_m", y_lines.clone())
-                .with("empty_pixels", empty)
-                .with("lines_equally_spaced", regular)
-                .with(
-                    "layout",
-                    if regular {
-                        "the output layer's map CSV (bottom row first) and Gwyddion .gsf; nan \
-                         where no sample fell"
-                    } else {
-                        "the output layer's map CSV and .gsf with one row per line in order; \
-                         the lines are not equally spaced, their y are grid.y_m"
-                    },
-                ),
-        )
-        .with(
-            "per_element",
-            Json::obj()
-                .with("element_pitch_m", opts.element_pitch_m)
-                .with(
-                    "count",
-                    "continuum n = π a(δ)²/pitch² at the pixel's apex depth",
-                )
-                .with(
-                    "spring",
-                    "k/n (the bed's tangent stiffness per element; SVE needs no (32))",
-                ),
-        )
-        .with(
-            "replay",
-            replay::observer_json(&ocfg, replay::SVE_MEMORY_S, &ocfg.sve_estimator)
-                .with("sve_highpass_hz", ocfg.sve_highpass_hz)
-                .with("converge_s", CONVERGE_S),
-        )
-        .with("maps", map_json)
-        .with("notes", {
+    let j = rep::SveReport {
+        model: "cantilever first mode (2) on an aggregate Kelvin–Voigt contact (10), identified \
+                continuously with the decoupled SVE regression"
+            .into(),
+        cantilever: rep::CantileverJson::new(meta).used_from(cant_source),
+        tip_radius_m: r,
+        sample_rate_hz: fs,
+        regressor: "decoupled (16): w and φ = [−sZ/Λ, −Z/Λ] high-passed at f0/32, θ = [c, k]; \
+                    ĥ = Z/Λ + F/k̂"
+            .into(),
+        contact: rep::SveContact {
+            row: contact.row + 1,
+            t_s: t0 + contact.row as f64 / fs,
+            height_m: contact.h_m.into(),
+            free_deflection_m: contact.d0_m.into(),
+            released_row: sv.release.map(|r| r + 1),
+        },
+        scan: rep::Scan {
+            passes: passes.len() as u64,
+            forward: forward as u64,
+            backward: (passes.len() - forward) as u64,
+            x_range_m: [x_lo.into(), x_hi.into()],
+            y_range_m: [y_lo.into(), y_hi.into()],
+            lines_from: if opts.lines.is_some() {
+                "--lines (equal bins)"
+            } else {
+                "the distinct y of the passes"
+            }
+            .into(),
+        },
+        grid: rep::Grid {
+            pixels: nx as u64,
+            lines: ny as u64,
+            x_m: nums(x_centres.iter().copied()),
+            y_m: nums(y_lines.iter().copied()),
+            empty_pixels: empty as u64,
+            lines_equally_spaced: regular,
+            layout: if regular {
+                "the output layer's map CSV (bottom row first) and Gwyddion .gsf; nan \
+                 where no sample fell"
+            } else {
+                "the output layer's map CSV and .gsf with one row per line in order; \
+                 the lines are not equally spaced, their y are grid.y_m"
+            }
+            .into(),
+        },
+        per_element: rep::SvePerElement {
+            element_pitch_m: opts.element_pitch_m,
+            count: "continuum n = π a(δ)²/pitch² at the pixel's apex depth".into(),
+            spring: "k/n (the bed's tangent stiffness per element; SVE needs no (32))".into(),
+        },
+        replay: rep::SveReplay {
+            observer: replay::observer_json(&ocfg, replay::SVE_MEMORY_S, &ocfg.sve_estimator),
+            sve_highpass_hz: ocfg.sve_highpass_hz,
+            converge_s: CONVERGE_S,
+        },
+        maps: map_json,
+        notes: {
             let mut notes: Vec<String> = vec![
                 "per-element values and the surface height use the continuum count and mean \
                  sag at the apex depth; a coarse lattice between its rows differs by a few % \
@@ -672,27 +648,24 @@ pub(crate) fn identify(
                 notes.push(format!("{empty} pixel(s) without samples (nan)"));
             }
             notes
-        })
-        .with("taps", Json::Arr(Vec::new()))
-        .with("rms_misfit_m", total.rms())
-        .with(
-            "fit",
-            Json::obj()
-                .with(
-                    "model",
-                    "the plant (cantilever, sphere, element bed) on a bed built from the maps \
-                     (per-element c, k and the surface height, bilinear onto the lattice), \
-                     driven by the recorded U, X, Y, plus the free deflection; noise and \
-                     converters off",
-                )
-                .with("rms_misfit_m", total.rms())
-                .with("rms_misfit_scan_m", scan.rms())
-                .with("series_csv", series_path.display().to_string())
-                .with("series_stride_rows", stride)
-                .with("detail_csv", detail_path.display().to_string())
-                .with("figure_png", png.display().to_string())
-                .with("detail_png", detail_png.display().to_string()),
-        );
+        },
+        taps: Vec::new(),
+        rms_misfit_m: total.rms().into(),
+        fit: rep::SveFit {
+            model: "the plant (cantilever, sphere, element bed) on a bed built from the maps \
+                    (per-element c, k and the surface height, bilinear onto the lattice), \
+                    driven by the recorded U, X, Y, plus the free deflection; noise and \
+                    converters off"
+                .into(),
+            rms_misfit_m: total.rms().into(),
+            rms_misfit_scan_m: scan.rms().into(),
+            series_csv: series_path.display().to_string(),
+            series_stride_rows: stride,
+            detail_csv: detail_path.display().to_string(),
+            figure_png: png.display().to_string(),
+            detail_png: detail_png.display().to_string(),
+        },
+    };
     Ok(SveResult {
         json: j,
         rms_misfit_m: total.rms(),
