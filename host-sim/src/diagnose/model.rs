@@ -26,8 +26,9 @@
 //!   polynomial particular solution for a cubic input), so the stiff contact (c/M ≈ 10⁶ s⁻¹)
 //!   is no problem; where the contact's stiffness changes fast (the touch, a shallow contact
 //!   moving quickly) the interval is cut into sub-steps. What U did between samples is not in
-//!   a recording: a controller's DAC holds it (a staircase, the plant's convention), a
-//!   simulator or a smooth source interpolates it; [`Input`] is chosen by the fit.
+//!   a recording: a controller's DAC holds it (a staircase, updated after the reading as in
+//!   the plant, or just before it), a simulator or a smooth source interpolates it; [`Input`]
+//!   is chosen by the fit.
 //!   A recording starts wherever the instrument was — mid-oscillation when the excitation
 //!   ran before it —, so the initial state (Z's departure from static equilibrium and Ż) is
 //!   fitted: the free response is linear in both. The header's f₀ and Q are calibrations, not
@@ -36,6 +37,8 @@
 //! * **Quasi-static** (force curves: µm/s, kHz sampling, far below resonance): the cantilever
 //!   is a spring, `K·(U − Z) + F_ts + F_effects = 0` at every sample, solved implicitly
 //!   (backward Euler for the dampers), the effects' forces iterated to the sample's state.
+//!   With a DAC updated just before the reading ([`Input::HeldFromSample`]) the lever has
+//!   settled to the previous row's U when the row's D is read: D = U_i − Z(U_{i−1}).
 //!
 //! Units inside: nm, µs, nN (as the plant).
 
@@ -75,11 +78,23 @@ pub struct Contact {
     pub c_a: f64,
 }
 
-/// What the base did between two recorded samples of U (dynamic models only).
+/// What the base did between two recorded samples of U.
+///
+/// Two DAC timings are physical and a recording's rows do not say which it used: the reading
+/// of D at a sample is taken *before* the DAC takes the row's U ([`Input::Held`]: the row's U
+/// was held over the interval that ends at its sample, the plant's convention), or just
+/// *after* it ([`Input::HeldFromSample`]: the row's U is held from its own sample to the
+/// next, so the reading sees the base's step but not yet the lever's response to it). They
+/// differ by one sample of delay of the whole response, i.e. a residual of about Ḋ·Δt — at
+/// the tone near resonance many times the noise. Both are fitted; the data choose.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Input {
-    /// Held at the new sample (a DAC's staircase, the plant's convention).
+    /// Held at the new sample (a DAC's staircase updated after the reading; the plant's
+    /// convention).
     Held,
+    /// Held from its own sample to the next (a DAC's staircase updated just before the
+    /// reading).
+    HeldFromSample,
     /// A straight line between the samples (a continuous source, sampled).
     Linear,
     /// A cubic through the two samples and their neighbours (Catmull–Rom: a smooth
@@ -90,11 +105,22 @@ pub enum Input {
 
 impl Input {
     /// Every convention, in the order they are tried.
-    pub const ALL: [Input; 3] = [Input::Held, Input::Linear, Input::Cubic];
+    pub const ALL: [Input; 4] = [
+        Input::Held,
+        Input::HeldFromSample,
+        Input::Linear,
+        Input::Cubic,
+    ];
+    /// The conventions a quasi-static model can tell apart: the lever follows the base at
+    /// once, so only the DAC's timing against the reading matters.
+    pub const QUASI_STATIC: [Input; 2] = [Input::Held, Input::HeldFromSample];
     /// For reports.
     pub fn describe(self) -> &'static str {
         match self {
-            Input::Held => "held (a DAC's staircase)",
+            Input::Held => "held (a DAC's staircase, updated after the reading)",
+            Input::HeldFromSample => {
+                "held from its own sample on (a DAC's staircase, updated just before the reading)"
+            }
             Input::Linear => "linear (a continuous source, sampled)",
             Input::Cubic => "cubic through the neighbouring samples (a smooth command, sampled)",
         }
@@ -253,7 +279,11 @@ pub fn simulate(
         v = nom.v0;
     }
     let mut cache = PropagatorCache::default();
+    // The effective base (after the effects' piezo hooks) of the previous two rows: the
+    // `HeldFromSample` convention holds the previous row's over the interval, after the step
+    // from the one before it.
     let mut u_eff_prev = data.u[0];
+    let mut u_eff_prev2 = data.u[0];
     let dt_first = if n > 1 { data.t[1] - data.t[0] } else { 1.0 };
     for i in 0..n {
         let ct = contact_of(i);
@@ -284,17 +314,27 @@ pub fn simulate(
                         r,
                         ct,
                     };
-                    let poly = input_polynomial(nom.input, data, i, u_eff_prev, u_eff);
+                    let poly =
+                        input_polynomial(nom.input, data, i, u_eff_prev2, u_eff_prev, u_eff);
                     (z, v) = sys.interval(z, v, &poly, f_eff, dt, &mut cache);
                 }
                 None => {
-                    (z, v) =
-                        quasi_static_step(inst, ct, effects, &ctx0, u_eff, z, dt, k_lin, c_lin);
+                    // The lever settles to the base that acted over the interval.
+                    let u_acting = if nom.input == Input::HeldFromSample {
+                        u_eff_prev
+                    } else {
+                        u_eff
+                    };
+                    (z, v) = quasi_static_step(
+                        inst, ct, effects, &ctx0, u_acting, z, dt, k_lin, c_lin,
+                    );
                 }
             }
+            u_eff_prev2 = u_eff_prev;
             u_eff_prev = u_eff;
         }
-        // Measure.
+        // Measure: the base at the reading is the row's in every convention (with
+        // `HeldFromSample` it has just stepped there).
         let ctx = context(ct, r, data.t[i], dt, z, v, u_cmd);
         let mut d = u_eff_prev - z;
         for e in effects.iter() {
@@ -391,14 +431,28 @@ struct InputPoly {
 }
 
 /// The base's path between samples i − 1 and i under `input`; `u0`, `u1` are the effective
-/// base (after the effects' piezo hooks) at both ends. The cubic follows the commanded U's
-/// neighbours, the effects' change of the base riding on it linearly.
+/// base (after the effects' piezo hooks) at both ends, `u_before` the one at sample i − 2.
+/// The cubic follows the commanded U's neighbours, the effects' change of the base riding on
+/// it linearly.
 #[inline]
-fn input_polynomial(input: Input, data: &Data, i: usize, u0: f64, u1: f64) -> InputPoly {
+fn input_polynomial(
+    input: Input,
+    data: &Data,
+    i: usize,
+    u_before: f64,
+    u0: f64,
+    u1: f64,
+) -> InputPoly {
     match input {
         Input::Held => InputPoly {
             c: [u1, 0.0, 0.0, 0.0],
             jump: u1 - u0,
+        },
+        // The step to u0 happened at sample i − 1, just before its reading: its impulse acts
+        // from there (at the first sample it is part of the fitted initial state).
+        Input::HeldFromSample => InputPoly {
+            c: [u0, 0.0, 0.0, 0.0],
+            jump: if i >= 2 { u0 - u_before } else { 0.0 },
         },
         Input::Linear => InputPoly {
             c: [u0, u1 - u0, 0.0, 0.0],

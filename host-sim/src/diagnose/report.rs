@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use super::candidates::Env;
 use super::explain::explain;
 use super::locate::{locate, phases, spans, Located, Phase, Span};
-use super::model::Trace;
+use super::model::{Input, Trace};
 use super::noise::HeldOut;
 use super::problem::{Problem, BLOCK};
 use super::search::{c_a_si, k_a_si, Search, SearchOptions, DETECTION_FLOOR};
@@ -385,7 +385,7 @@ impl Diagnosis {
                     .with("dynamics", p.dynamics_source.as_str())
                     .with(
                         "input_between_samples",
-                        if !p.inst.dynamic() {
+                        if !p.inst.dynamic() && s.nominal.nominal.input == Input::Held {
                             "not used (quasi-static)"
                         } else {
                             s.nominal.nominal.input.describe()

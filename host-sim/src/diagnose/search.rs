@@ -800,10 +800,11 @@ impl Problem {
         // The input between samples of a dynamic recording (a DAC's staircase, a sampled
         // line, a smooth command): whichever fits the first start best, each convention
         // polished from the best fit so far (they differ by a fraction of the excitation).
+        // A quasi-static recording can only tell the DAC's timing against the reading.
         let inputs: &[Input] = if self.inst.dynamic() {
             &Input::ALL
         } else {
-            &[Input::Held]
+            &Input::QUASI_STATIC
         };
         let mut input_fits: Vec<(f64, Model)> = first.into_iter().collect();
         for &inp in inputs {
