@@ -127,6 +127,125 @@ impl Input {
     }
 }
 
+/// The bed under the tip. Its per-area spring k_a and damper c_a ([`Contact`]) mean the same
+/// in both: a lattice element stands for one cell of area p², so it has k_a·p² and c_a·p².
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Bed {
+    /// The element bed's continuum limit: `F = k_a·V(δ) − c_a·A(δ)·Ż` (a real sample, or
+    /// elements much finer than the contact).
+    Continuum,
+    /// The paper's bed itself (`method.md` (5)–(8)): a square lattice of Kelvin–Voigt
+    /// elements at pitch p (nm), the tip's axis at `offset` (fractions of a pitch) in its
+    /// cell. With a few elements under the tip (the paper's 100 nm under a 300 nm tip) the
+    /// force steps as each element engages, which the continuum cannot follow; pitch and
+    /// offset are nuisance parameters the fit searches (`search`).
+    Lattice { pitch_nm: f64, offset: [f64; 2] },
+}
+
+impl Bed {
+    /// For reports.
+    pub fn describe(self) -> String {
+        match self {
+            Bed::Continuum => "continuum limit of the element bed".to_string(),
+            Bed::Lattice { pitch_nm, offset } => format!(
+                "square lattice of discrete elements, pitch {pitch_nm:.1} nm, tip axis at \
+                 ({:.3}, {:.3}) of a cell",
+                offset[0], offset[1]
+            ),
+        }
+    }
+}
+
+/// The bed's contact geometry under a sphere of radius R: the elastic "volume" V(δ) and the
+/// "area" A(δ) = dV/dδ whose products with k_a and c_a are the bed's elastic force and
+/// damping. For a lattice, the sags s_i = R − √(R² − r_i²) of the elements under the tip
+/// (r_i < R), ascending, and their prefix sums: V(δ) = p²·Σ_{s_i<δ}(δ − s_i), A(δ) = p²·n(δ).
+#[derive(Clone, Debug)]
+pub struct BedGeometry {
+    r: f64,
+    cell: f64,
+    sags: Vec<f64>,
+    prefix: Vec<f64>,
+    lattice: bool,
+}
+
+impl BedGeometry {
+    pub fn new(bed: Bed, r: f64) -> Self {
+        match bed {
+            Bed::Continuum => BedGeometry {
+                r,
+                cell: 0.0,
+                sags: Vec::new(),
+                prefix: Vec::new(),
+                lattice: false,
+            },
+            Bed::Lattice { pitch_nm, offset } => {
+                let p = pitch_nm.max(1e-3 * r).max(1e-9);
+                let n = (r / p).ceil() as i64 + 2;
+                let mut sags = Vec::new();
+                for i in -n..=n {
+                    for j in -n..=n {
+                        let x = (i as f64 - offset[0]) * p;
+                        let y = (j as f64 - offset[1]) * p;
+                        let r2 = x * x + y * y;
+                        if r2 < r * r {
+                            sags.push(r - (r * r - r2).sqrt());
+                        }
+                    }
+                }
+                sags.sort_by(f64::total_cmp);
+                let mut prefix = Vec::with_capacity(sags.len() + 1);
+                let mut acc = 0.0;
+                prefix.push(0.0);
+                for s in &sags {
+                    acc += s;
+                    prefix.push(acc);
+                }
+                BedGeometry {
+                    r,
+                    cell: p * p,
+                    sags,
+                    prefix,
+                    lattice: true,
+                }
+            }
+        }
+    }
+    /// Whether the bed is a lattice (its force changes slope at each element's engagement).
+    #[inline]
+    pub fn is_lattice(&self) -> bool {
+        self.lattice
+    }
+    /// Elements engaged at apex depth δ (lattice); 1 or 0 for the continuum.
+    #[inline]
+    pub fn engaged(&self, d: f64) -> usize {
+        if self.lattice {
+            self.sags.partition_point(|&s| s < d)
+        } else {
+            usize::from(d > 0.0)
+        }
+    }
+    /// V(δ) (nm³).
+    #[inline]
+    pub fn volume(&self, d: f64) -> f64 {
+        if self.lattice {
+            let n = self.engaged(d);
+            self.cell * (n as f64 * d - self.prefix[n])
+        } else {
+            cap_volume(self.r, d)
+        }
+    }
+    /// A(δ) = dV/dδ (nm²).
+    #[inline]
+    pub fn area(&self, d: f64) -> f64 {
+        if self.lattice {
+            self.cell * self.engaged(d) as f64
+        } else {
+            contact_area(self.r, d)
+        }
+    }
+}
+
 /// The nominal parameters.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Nominal {
@@ -144,6 +263,8 @@ pub struct Nominal {
     /// (K kept, M adjusted) and Q × `q_scale`; 1 = the header's values.
     pub f0_scale: f64,
     pub q_scale: f64,
+    /// The bed's form (one for the whole recording).
+    pub bed: Bed,
     /// Per unit.
     pub contacts: Vec<Contact>,
 }
@@ -158,6 +279,7 @@ impl Nominal {
             v0: 0.0,
             f0_scale: 1.0,
             q_scale: 1.0,
+            bed: Bed::Continuum,
             contacts,
         }
     }
@@ -240,6 +362,20 @@ pub fn contact_area(r: f64, d: f64) -> f64 {
 
 /// Largest sub-steps per interval.
 const SUBSTEPS_MAX: usize = 64;
+/// Largest number of engagement events handled within one interval on a lattice (the rest of
+/// the interval, if more, is one linearised piece).
+const LATTICE_EVENTS_MAX: usize = 64;
+
+/// The cubic Hermite path between (z0, v0) and (z1, v1) over `tau`, at the fraction q.
+#[inline]
+fn hermite(z0: f64, v0: f64, z1: f64, v1: f64, tau: f64, q: f64) -> f64 {
+    let q2 = q * q;
+    let q3 = q2 * q;
+    (2.0 * q3 - 3.0 * q2 + 1.0) * z0
+        + (q3 - 2.0 * q2 + q) * tau * v0
+        + (-2.0 * q3 + 3.0 * q2) * z1
+        + (q3 - q2) * tau * v1
+}
 
 /// Runs the model over `data`: the simulated detector reading per sample (nm), and the states
 /// when `trace` is given. `effects` are fresh (their state starts at the first sample).
@@ -268,11 +404,12 @@ pub fn simulate(
     });
     let inst = &nom.instrument(inst);
     let r = inst.r_tip;
+    let geo = &BedGeometry::new(nom.bed, r);
     let contact_of = |i: usize| nom.contacts[data.unit[i].min(nom.contacts.len() - 1)];
     // Start from static equilibrium with the first U (effects' held forces excluded, as the
     // plant's settle), displaced by the fitted initial state.
     let c0 = contact_of(0);
-    let mut z = static_equilibrium(inst.k + k_lin, inst.k * data.u[0], c0, r);
+    let mut z = static_equilibrium(inst.k + k_lin, inst.k * data.u[0], c0, geo);
     let mut v = 0.0;
     if inst.dynamic() {
         z += nom.z0;
@@ -294,7 +431,7 @@ pub fn simulate(
         };
         let u_cmd = data.u[i];
         if i > 0 {
-            let ctx0 = context(ct, r, data.t[i - 1], dt, z, v, u_cmd);
+            let ctx0 = context(ct, geo, data.t[i - 1], dt, z, v, u_cmd);
             let mut u_eff = u_cmd;
             for e in effects.iter() {
                 u_eff = e.piezo_z_nm(&ctx0, u_eff);
@@ -312,6 +449,7 @@ pub fn simulate(
                         c: inst.c + c_lin,
                         c_base: inst.c,
                         r,
+                        geo,
                         ct,
                     };
                     let poly =
@@ -326,7 +464,7 @@ pub fn simulate(
                         u_eff
                     };
                     (z, v) = quasi_static_step(
-                        inst, ct, effects, &ctx0, u_acting, z, dt, k_lin, c_lin,
+                        inst, geo, ct, effects, &ctx0, u_acting, z, dt, k_lin, c_lin,
                     );
                 }
             }
@@ -335,7 +473,7 @@ pub fn simulate(
         }
         // Measure: the base at the reading is the row's in every convention (with
         // `HeldFromSample` it has just stepped there).
-        let ctx = context(ct, r, data.t[i], dt, z, v, u_cmd);
+        let ctx = context(ct, geo, data.t[i], dt, z, v, u_cmd);
         let mut d = u_eff_prev - z;
         for e in effects.iter() {
             d = e.measured_deflection_nm(&ctx, d);
@@ -356,8 +494,16 @@ pub fn simulate(
 
 /// What the effects see at time `t` with the tip at (Z, Ż) and the commanded U.
 #[inline]
-fn context(ct: Contact, r: f64, t: f64, dt: f64, z: f64, v: f64, u_cmd: f64) -> EffectContext {
-    let (fe, fd) = force(ct, r, z, v);
+fn context(
+    ct: Contact,
+    geo: &BedGeometry,
+    t: f64,
+    dt: f64,
+    z: f64,
+    v: f64,
+    u_cmd: f64,
+) -> EffectContext {
+    let (fe, fd) = force(ct, geo, z, v);
     EffectContext {
         time_us: t,
         dt_us: dt,
@@ -369,29 +515,29 @@ fn context(ct: Contact, r: f64, t: f64, dt: f64, z: f64, v: f64, u_cmd: f64) -> 
         contact_force_nn: fe + fd,
         elastic_force_nn: fe,
         depth_nm: ct.h - z,
-        active_elements: usize::from(ct.h > z),
+        active_elements: geo.engaged(ct.h - z),
     }
 }
 
 /// The bed's (elastic, damping) force on the tip at (Z, Ż).
 #[inline]
-fn force(ct: Contact, r: f64, z: f64, v: f64) -> (f64, f64) {
+fn force(ct: Contact, geo: &BedGeometry, z: f64, v: f64) -> (f64, f64) {
     let d = ct.h - z;
     if d > 0.0 {
-        (ct.k_a * cap_volume(r, d), -ct.c_a * contact_area(r, d) * v)
+        (ct.k_a * geo.volume(d), -ct.c_a * geo.area(d) * v)
     } else {
         (0.0, 0.0)
     }
 }
 
 /// Z where `k·Z = f + k_a·V(h − Z)` (the static balance with the base force f = K·U).
-fn static_equilibrium(k: f64, f: f64, ct: Contact, r: f64) -> f64 {
+fn static_equilibrium(k: f64, f: f64, ct: Contact, geo: &BedGeometry) -> f64 {
     let free = f / k;
     if free >= ct.h || ct.k_a <= 0.0 {
         return free;
     }
     // g(z) = f + k_a·V(h − z) − k·z decreases in z; root in [free, h).
-    let g = |z: f64| f + ct.k_a * cap_volume(r, ct.h - z) - k * z;
+    let g = |z: f64| f + ct.k_a * geo.volume(ct.h - z) - k * z;
     let (mut lo, mut hi) = (free, ct.h);
     for _ in 0..200 {
         let mid = 0.5 * (lo + hi);
@@ -408,7 +554,7 @@ fn static_equilibrium(k: f64, f: f64, ct: Contact, r: f64) -> f64 {
 }
 
 /// The dynamic system of one interval.
-struct Dyn {
+struct Dyn<'a> {
     m: f64,
     /// Cantilever stiffness with the effects' linear terms (on Z).
     k: f64,
@@ -417,6 +563,7 @@ struct Dyn {
     c: f64,
     c_base: f64,
     r: f64,
+    geo: &'a BedGeometry,
     ct: Contact,
 }
 
@@ -515,7 +662,7 @@ impl PropagatorCache {
     }
 }
 
-impl Dyn {
+impl Dyn<'_> {
     /// Advances (z, v) over one sample interval of length `dt` with the base following
     /// `poly`, an extra held force `f_eff`.
     #[inline]
@@ -530,6 +677,9 @@ impl Dyn {
     ) -> (f64, f64) {
         // A held input jumps at the start: an impulse C·Δu/M through the base damping.
         let v = v + self.c_base * poly.jump / self.m;
+        if self.geo.is_lattice() {
+            return self.interval_lattice(z, v, poly, f_eff, dt, cache);
+        }
         // Trial step; cut into sub-steps where the contact stiffness changes fast.
         let (z1, v1) = self.piece(z, v, poly, 0.0, 1.0, f_eff, dt, cache);
         let d0 = self.ct.h - z;
@@ -556,6 +706,68 @@ impl Dyn {
         (zz, vv)
     }
 
+    /// [`Dyn::interval`] on a lattice: between engagements the bed is linear, so each piece
+    /// is exact; an element entering or leaving contact is an event, located (on the exact
+    /// solution, by bisection) and stepped to, so its damper switches where it should. A
+    /// crossing is looked for on the cubic Hermite path through the piece's ends at eight
+    /// points (a brief dip past one element and back inside an eighth of a sample is missed:
+    /// its impulse is c_el·Ż·τ over that sliver).
+    #[allow(clippy::too_many_arguments)]
+    fn interval_lattice(
+        &self,
+        z: f64,
+        v: f64,
+        poly: &InputPoly,
+        f_eff: f64,
+        dt: f64,
+        cache: &mut PropagatorCache,
+    ) -> (f64, f64) {
+        let h = self.ct.h;
+        let (mut zz, mut vv, mut s) = (z, v, 0.0);
+        for _ in 0..LATTICE_EVENTS_MAX {
+            let (z1, v1) = self.piece(zz, vv, poly, s, 1.0, f_eff, dt, cache);
+            if self.ct.k_a <= 0.0 && self.ct.c_a <= 0.0 {
+                return (z1, v1);
+            }
+            let n0 = self.geo.engaged(h - zz);
+            let tau = (1.0 - s) * dt;
+            let mut hit = None;
+            for j in 1..=8 {
+                let q = j as f64 / 8.0;
+                let zq = hermite(zz, vv, z1, v1, tau, q);
+                if self.geo.engaged(h - zq) != n0 {
+                    hit = Some(q);
+                    break;
+                }
+            }
+            let Some(q) = hit else {
+                return (z1, v1);
+            };
+            // Bisection on the exact solution for the first change of the engaged count.
+            let (mut lo, mut hi) = (q - 0.125, q);
+            for _ in 0..40 {
+                let mid = 0.5 * (lo + hi);
+                let (zm, _) =
+                    self.piece(zz, vv, poly, s, s + (1.0 - s) * mid, f_eff, dt, cache);
+                if self.geo.engaged(h - zm) == n0 {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+                if (hi - lo) * tau < 1e-9 {
+                    break;
+                }
+            }
+            let s_new = s + (1.0 - s) * hi;
+            (zz, vv) = self.piece(zz, vv, poly, s, s_new, f_eff, dt, cache);
+            s = s_new;
+            if s >= 1.0 - 1e-12 {
+                return (zz, vv);
+            }
+        }
+        self.piece(zz, vv, poly, s, 1.0, f_eff, dt, cache)
+    }
+
     /// Exact solution over the fraction `[s0, s1]` of the interval with the contact linearised
     /// at its start and the base a cubic in time: a polynomial particular solution, the
     /// homogeneous deviation propagated exactly.
@@ -575,11 +787,12 @@ impl Dyn {
         let tau = (s1 - s0) * dt;
         let d = self.ct.h - z;
         let (kt, ct, f_hold) = if d > 0.0 {
-            let a = contact_area(self.r, d);
+            let a = self.geo.area(d);
             let kt = self.ct.k_a * a;
             let cc = self.ct.c_a * a;
-            // F ≈ f_hold − kt·Z − cc·Ż around the start.
-            let f0 = self.ct.k_a * cap_volume(self.r, d) - cc * v;
+            // F ≈ f_hold − kt·Z − cc·Ż around the start (exact on a lattice until the next
+            // engagement).
+            let f0 = self.ct.k_a * self.geo.volume(d) - cc * v;
             (kt, cc, f0 + kt * z + cc * v)
         } else {
             (0.0, 0.0, 0.0)
@@ -614,6 +827,7 @@ impl Dyn {
 #[allow(clippy::too_many_arguments)]
 fn quasi_static_step(
     inst: &Instrument,
+    geo: &BedGeometry,
     ct: Contact,
     effects: &[Box<dyn Effect>],
     ctx0: &EffectContext,
@@ -623,23 +837,22 @@ fn quasi_static_step(
     k_lin: f64,
     c_lin: f64,
 ) -> (f64, f64) {
-    let r = inst.r_tip;
     let mut f_eff = 0.0;
     for e in effects {
         f_eff += e.tip_force_nn(ctx0);
     }
-    let mut z = solve_quasi_static(inst.k, k_lin, c_lin, ct, r, u, z_prev, dt, f_eff);
+    let mut z = solve_quasi_static(inst.k, k_lin, c_lin, ct, geo, u, z_prev, dt, f_eff);
     if !effects.is_empty() {
         for _ in 0..2 {
             let v = (z - z_prev) / dt;
-            let (fe, fd) = force(ct, r, z, v);
+            let (fe, fd) = force(ct, geo, z, v);
             let ctx = EffectContext {
                 z_nm: z,
                 z_dot_nm_per_us: v,
                 contact_force_nn: fe + fd,
                 elastic_force_nn: fe,
                 depth_nm: ct.h - z,
-                active_elements: usize::from(ct.h > z),
+                active_elements: geo.engaged(ct.h - z),
                 ..*ctx0
             };
             let f_new: f64 = effects.iter().map(|e| e.tip_force_nn(&ctx)).sum();
@@ -647,7 +860,7 @@ fn quasi_static_step(
                 break;
             }
             f_eff = f_new;
-            z = solve_quasi_static(inst.k, k_lin, c_lin, ct, r, u, z_prev, dt, f_eff);
+            z = solve_quasi_static(inst.k, k_lin, c_lin, ct, geo, u, z_prev, dt, f_eff);
         }
     }
     (z, (z - z_prev) / dt)
@@ -661,7 +874,7 @@ fn solve_quasi_static(
     k_lin: f64,
     c_lin: f64,
     ct: Contact,
-    r: f64,
+    geo: &BedGeometry,
     u: f64,
     z0: f64,
     dt: f64,
@@ -671,7 +884,7 @@ fn solve_quasi_static(
     let g = |z: f64| -> (f64, f64) {
         let d = ct.h - z;
         let (fe, a) = if d > 0.0 {
-            (ct.k_a * cap_volume(r, d), contact_area(r, d))
+            (ct.k_a * geo.volume(d), geo.area(d))
         } else {
             (0.0, 0.0)
         };

@@ -391,6 +391,7 @@ impl Diagnosis {
                             s.nominal.nominal.input.describe()
                         },
                     )
+                    .with("bed", s.nominal.nominal.bed.describe().as_str())
                     .with("initial_state", initial_state)
                     .with("calibration", calibration)
                     .with("offset_m", s.nominal.nominal.offset * LENGTH)

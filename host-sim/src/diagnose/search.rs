@@ -21,7 +21,7 @@
 
 use super::candidates::{Candidate, Env};
 use super::fit::{levenberg_marquardt, linear_least_squares, ssr, LmOptions, Param};
-use super::model::{simulate, Input, Nominal, Trace};
+use super::model::{simulate, Bed, Input, Nominal, Trace};
 use super::noise::{held_out_test, HeldOut, NoiseModel, MAX_ORDER};
 use super::problem::Problem;
 use crate::plant::effects::{Effect, EffectKind};
@@ -62,6 +62,10 @@ enum Slot {
     V0,
     F0,
     Q,
+    /// A lattice bed's offset of the tip's axis in its cell, along x and y (fractions of a
+    /// pitch).
+    LatticeX,
+    LatticeY,
     Effect(usize, usize),
 }
 
@@ -74,6 +78,19 @@ pub const F0_TOLERANCE: f64 = 0.005;
 pub const Q_TOLERANCE: f64 = 0.05;
 /// Hard bounds of the corrections, in tolerances.
 const CALIBRATION_BOUND: f64 = 4.0;
+/// A lattice bed's pitches tried, as R/divisor: from two to six elements across the tip's
+/// radius (the paper's 100 nm under 300 nm is 3).
+const LATTICE_PITCH_DIVISORS: [f64; 5] = [2.0, 3.0, 4.0, 5.0, 6.0];
+/// The tip axis's offsets tried in the lattice cell: the corners and midpoints of the
+/// irreducible triangle 0 ≤ y ≤ x ≤ ½ of the square lattice's symmetry.
+const LATTICE_OFFSETS: [[f64; 2]; 6] = [
+    [0.0, 0.0],
+    [0.25, 0.0],
+    [0.5, 0.0],
+    [0.25, 0.25],
+    [0.5, 0.25],
+    [0.5, 0.5],
+];
 
 /// A fitted extension and its test against the model it extends.
 #[derive(Clone, Debug)]
@@ -261,6 +278,18 @@ impl Problem {
                 ),
             ));
         }
+        if let Bed::Lattice { offset, .. } = nom.bed {
+            // The force is continuous in the offset (an element entering r < R engages only
+            // at δ = R), so LM refines the searched grid point.
+            out.push((
+                Slot::LatticeX,
+                Param::linear("lattice_x", offset[0], -1.0, 2.0, 0.05),
+            ));
+            out.push((
+                Slot::LatticeY,
+                Param::linear("lattice_y", offset[1], -1.0, 2.0, 0.05),
+            ));
+        }
         for (i, (cand, vals)) in m.effects.iter().enumerate() {
             for (j, p) in cand.params.iter().enumerate() {
                 if p.shape && !p.smooth {
@@ -285,6 +314,11 @@ impl Problem {
                 Slot::V0 => m.nominal.v0 = x,
                 Slot::F0 => m.nominal.f0_scale = x,
                 Slot::Q => m.nominal.q_scale = x,
+                Slot::LatticeX | Slot::LatticeY => {
+                    if let Bed::Lattice { offset, .. } = &mut m.nominal.bed {
+                        offset[usize::from(*slot == Slot::LatticeY)] = x;
+                    }
+                }
                 Slot::Effect(i, j) => m.effects[i].1[j] = x,
             }
         }
@@ -760,6 +794,57 @@ impl Problem {
         (held_out_test(&e0, &e1, &self.held, sigma), noise)
     }
 
+    /// The bed's form (module docs of [`super::model`]): the continuum fit `best`, or a lattice
+    /// of discrete elements if one fits the fit samples better by more than its searched
+    /// nuisance parameters can by chance. Pitches from R/2 to R/6 (finer lattices are the
+    /// continuum to within the noise: the force's ripple falls as the number of elements
+    /// under the tip grows), six offsets in the lattice cell's irreducible triangle (the
+    /// square lattice's symmetry), each polished briefly from the continuum's optimum; the
+    /// best is polished fully with its offset refined. It replaces the continuum when its
+    /// SSR is lower by more than BIC's ln(n)·σ² per added parameter (pitch and two offsets).
+    /// Returns the simulations spent.
+    fn choose_bed(
+        &self,
+        best: &mut (f64, Model),
+        env: &Env,
+        progress: &mut impl FnMut(&str),
+    ) -> usize {
+        if best.1.nominal.contacts.iter().all(|c| !(c.k_a > 0.0)) {
+            return 0;
+        }
+        let r = self.inst.r_tip;
+        let mut evaluations = 0;
+        let mut trials: Vec<(f64, Model)> = Vec::new();
+        for div in LATTICE_PITCH_DIVISORS {
+            for offset in LATTICE_OFFSETS {
+                let mut m = best.1.clone();
+                m.nominal.bed = Bed::Lattice {
+                    pitch_nm: r / div,
+                    offset,
+                };
+                let (s, ev) = self.polish(&mut m, env, 4);
+                evaluations += ev;
+                if s.is_finite() {
+                    trials.push((s, m));
+                }
+            }
+        }
+        trials.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let Some((_, mut m)) = trials.into_iter().next() else {
+            return evaluations;
+        };
+        let (s, ev) = self.polish(&mut m, env, 40);
+        evaluations += ev;
+        let sigma = env.noise_m / LENGTH;
+        let n_fit = self.fit.iter().filter(|&&f| f).count().max(2) as f64;
+        let threshold = 3.0 * n_fit.ln() * sigma * sigma;
+        if s.is_finite() && s < best.0 - threshold {
+            progress(&format!("bed: {}", m.nominal.bed.describe()));
+            *best = (s, m);
+        }
+        evaluations
+    }
+
     /// Nominal fit, then forward selection (module docs). `progress` is told each step.
     ///
     /// A recording whose nominal residual is dominated by misfit (real curves with large
@@ -822,6 +907,7 @@ impl Problem {
             input_fits.push((s, m));
         }
         input_fits.sort_by(|a, b| a.0.total_cmp(&b.0));
+        evaluations += self.choose_bed(&mut input_fits[0], &env0, &mut progress);
         let input = input_fits[0].1.nominal.input;
         let mut starts: Vec<(f64, Model)> = vec![input_fits[0].clone()];
         for (i, init) in inits.into_iter().enumerate().skip(1) {
@@ -830,6 +916,7 @@ impl Problem {
             m.nominal.input = input;
             (m.nominal.z0, m.nominal.v0) = (best.z0, best.v0);
             (m.nominal.f0_scale, m.nominal.q_scale) = (best.f0_scale, best.q_scale);
+            m.nominal.bed = best.bed;
             // The other starts keep their contact heights while the rest is fitted: left
             // free, the nominal model would pull them back to its own optimum.
             let (_, ev) = self.polish_with(&mut m, &env0, 40, i > 0);
