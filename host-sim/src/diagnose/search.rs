@@ -81,6 +81,8 @@ const CALIBRATION_BOUND: f64 = 4.0;
 /// A lattice bed's pitches tried, as R/divisor: from two to six elements across the tip's
 /// radius (the paper's 100 nm under 300 nm is 3).
 const LATTICE_PITCH_DIVISORS: [f64; 5] = [2.0, 3.0, 4.0, 5.0, 6.0];
+/// Screened lattices polished fully.
+const LATTICE_POLISHED: usize = 3;
 /// The tip axis's offsets tried in the lattice cell: the corners and midpoints of the
 /// irreducible triangle 0 ≤ y ≤ x ≤ ½ of the square lattice's symmetry.
 const LATTICE_OFFSETS: [[f64; 2]; 6] = [
@@ -371,12 +373,23 @@ impl Problem {
         max_iterations: usize,
         hold_heights: bool,
     ) -> (f64, usize) {
+        self.polish_free(m, env, max_iterations, |slot| {
+            !(hold_heights && matches!(slot, Slot::Height(_)))
+        })
+    }
+
+    /// [`Problem::polish`] over the parameters whose slot `free` accepts, the others held.
+    fn polish_free(
+        &self,
+        m: &mut Model,
+        env: &Env,
+        max_iterations: usize,
+        free: impl Fn(&Slot) -> bool,
+    ) -> (f64, usize) {
         let mut layout = self.layout(m, env.noise_m / LENGTH);
-        if hold_heights {
-            for (slot, p) in &mut layout {
-                if matches!(slot, Slot::Height(_)) {
-                    p.fixed = true;
-                }
+        for (slot, p) in &mut layout {
+            if !free(slot) {
+                p.fixed = true;
             }
         }
         let mut ps: Vec<Param> = layout.iter().map(|(_, p)| p.clone()).collect();
@@ -822,7 +835,14 @@ impl Problem {
                     pitch_nm: r / div,
                     offset,
                 };
-                let (s, ev) = self.polish(&mut m, env, 4);
+                // The screen: only what the bed's form moves (the detector offset and the
+                // contacts), a few iterations.
+                let (s, ev) = self.polish_free(&mut m, env, 3, |slot| {
+                    matches!(
+                        slot,
+                        Slot::Offset | Slot::Height(_) | Slot::Ka(_) | Slot::Ca(_)
+                    )
+                });
                 evaluations += ev;
                 if s.is_finite() {
                     trials.push((s, m));
@@ -830,11 +850,19 @@ impl Problem {
             }
         }
         trials.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let Some((_, mut m)) = trials.into_iter().next() else {
+        // The best few, each polished fully with its offset refined: the screen's order is
+        // only approximate where pitches give similar forces.
+        let mut polished: Option<(f64, Model)> = None;
+        for (_, mut m) in trials.into_iter().take(LATTICE_POLISHED) {
+            let (s, ev) = self.polish(&mut m, env, 40);
+            evaluations += ev;
+            if s.is_finite() && polished.as_ref().is_none_or(|p| s < p.0) {
+                polished = Some((s, m));
+            }
+        }
+        let Some((s, m)) = polished else {
             return evaluations;
         };
-        let (s, ev) = self.polish(&mut m, env, 40);
-        evaluations += ev;
         let sigma = env.noise_m / LENGTH;
         let n_fit = self.fit.iter().filter(|&&f| f).count().max(2) as f64;
         let threshold = 3.0 * n_fit.ln() * sigma * sigma;
