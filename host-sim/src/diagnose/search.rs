@@ -81,8 +81,12 @@ const CALIBRATION_BOUND: f64 = 4.0;
 /// A lattice bed's pitches tried, as R/divisor: from two to six elements across the tip's
 /// radius (the paper's 100 nm under 300 nm is 3).
 const LATTICE_PITCH_DIVISORS: [f64; 5] = [2.0, 3.0, 4.0, 5.0, 6.0];
-/// Screened lattices polished fully.
-const LATTICE_POLISHED: usize = 3;
+/// Screened lattices polished with everything free (the screen's order is reliable to about
+/// the second place between neighbouring pitches), and their iterations: from the
+/// continuum's optimum a lattice converges in a few (the cost matters on long taps: a
+/// 100 000-sample simulation is tens of ms).
+const LATTICE_POLISHED: usize = 2;
+const LATTICE_POLISH_ITERATIONS: usize = 12;
 /// The tip axis's offsets tried in the lattice cell: the corners and midpoints of the
 /// irreducible triangle 0 ≤ y ≤ x ≤ ½ of the square lattice's symmetry.
 const LATTICE_OFFSETS: [[f64; 2]; 6] = [
@@ -813,7 +817,7 @@ impl Problem {
     /// continuum to within the noise: the force's ripple falls as the number of elements
     /// under the tip grows), six offsets in the lattice cell's irreducible triangle (the
     /// square lattice's symmetry), each polished briefly from the continuum's optimum; the
-    /// best is polished fully with its offset refined. It replaces the continuum when its
+    /// best two are polished with their offsets refined. It replaces the continuum when its
     /// SSR is lower by more than BIC's ln(n)·σ² per added parameter (pitch and two offsets).
     /// Returns the simulations spent.
     fn choose_bed(
@@ -850,11 +854,11 @@ impl Problem {
             }
         }
         trials.sort_by(|a, b| a.0.total_cmp(&b.0));
-        // The best few, each polished fully with its offset refined: the screen's order is
-        // only approximate where pitches give similar forces.
+        // The best two, each polished with its offset refined: the screen's order is only
+        // approximate where pitches give similar forces.
         let mut polished: Option<(f64, Model)> = None;
         for (_, mut m) in trials.into_iter().take(LATTICE_POLISHED) {
-            let (s, ev) = self.polish(&mut m, env, 40);
+            let (s, ev) = self.polish(&mut m, env, LATTICE_POLISH_ITERATIONS);
             evaluations += ev;
             if s.is_finite() && polished.as_ref().is_none_or(|p| s < p.0) {
                 polished = Some((s, m));
