@@ -380,7 +380,8 @@ impl Diagnosis {
                     .with(
                         "model",
                         "M·Z̈ = K·(U − Z) + C·(U̇ − Ż) + F_ts, D = U − Z + d0, \
-                         F_ts = k_a·V(δ) − c_a·A(δ)·Ż (sphere on the bed's continuum)",
+                         F_ts = k_a·V(δ) − c_a·A(δ)·Ż (sphere on the element bed: V, A of \
+                         its continuum limit or of a lattice of elements, see `bed`)",
                     )
                     .with("dynamics", p.dynamics_source.as_str())
                     .with(

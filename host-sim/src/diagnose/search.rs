@@ -1,7 +1,10 @@
 //! Fitting the nominal model, fitting each candidate extension, and choosing among them.
 //!
 //! **Nominal fit.** Levenberg–Marquardt over the detector offset, the input's hold (dynamic
-//! recordings) and each unit's contact height, k_a and c_a, on the fit samples.
+//! recordings) and each unit's contact height, k_a and c_a, on the fit samples. The input
+//! between samples (a DAC's staircase updated after or just before the reading, a line, a
+//! cubic) and the bed's form (the continuum, or a lattice of discrete elements with pitch and
+//! offset searched: [`Problem::choose_bed`]) are chosen on the fit samples.
 //!
 //! **A candidate** (an effect added to the current model) is fitted in three steps, so that a
 //! nonlinear parameter cannot trap the fit in a poor local minimum:
@@ -820,7 +823,7 @@ impl Problem {
     /// best two are polished with their offsets refined. It replaces the continuum when its
     /// SSR is lower by more than BIC's ln(n)·σ² per added parameter (pitch and two offsets).
     /// Returns the simulations spent.
-    fn choose_bed(
+    pub(crate) fn choose_bed(
         &self,
         best: &mut (f64, Model),
         env: &Env,
@@ -939,6 +942,7 @@ impl Problem {
             input_fits.push((s, m));
         }
         input_fits.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let continuum = input_fits[0].clone();
         evaluations += self.choose_bed(&mut input_fits[0], &env0, &mut progress);
         let input = input_fits[0].1.nominal.input;
         let mut starts: Vec<(f64, Model)> = vec![input_fits[0].clone()];
@@ -963,6 +967,13 @@ impl Problem {
         // choice can absorb one while the extension needs the other.
         if let Some(second) = input_fits.get(1) {
             starts.push(second.clone());
+        }
+        // The continuum stays a start when a lattice was chosen: a coarse lattice bends the
+        // force–depth law a little, so it can stand in for part of a nonlinear stiffness (or
+        // an attraction at the touch); the extension of the continuum by that effect then
+        // competes with the lattice nominal in the held-out test.
+        if input_fits[0].1.nominal.bed != Bed::Continuum {
+            starts.push(continuum);
         }
         // The scales every effect is built with are frozen here, from the fitted nominal
         // model, so that an effect means the same at every stage; the nominal fit is
