@@ -38,7 +38,9 @@
 //!   is a spring, `K·(U − Z) + F_ts + F_effects = 0` at every sample, solved implicitly
 //!   (backward Euler for the dampers), the effects' forces iterated to the sample's state.
 //!   With a DAC updated just before the reading ([`Input::HeldFromSample`]) the lever has
-//!   settled to the previous row's U when the row's D is read: D = U_i − Z(U_{i−1}).
+//!   settled to the previous row's U when the row's D is read: D = U_i − Z(U_{i−1}) (the
+//!   search does not offer it for quasi-static recordings: there it is a drag of K·Δt on
+//!   the base's velocity, which the drag candidate tests).
 //!
 //! Units inside: nm, µs, nN (as the plant).
 
@@ -111,9 +113,6 @@ impl Input {
         Input::Linear,
         Input::Cubic,
     ];
-    /// The conventions a quasi-static model can tell apart: the lever follows the base at
-    /// once, so only the DAC's timing against the reading matters.
-    pub const QUASI_STATIC: [Input; 2] = [Input::Held, Input::HeldFromSample];
     /// For reports.
     pub fn describe(self) -> &'static str {
         match self {
