@@ -102,6 +102,8 @@ pub struct Nominal {
     pub model: String,
     pub dynamics: String,
     pub input_between_samples: String,
+    /// The bed the nominal model used (continuum, or a lattice with its pitch and offset) and why.
+    pub bed: String,
     /// Fitted initial state (null for quasi-static recordings).
     pub initial_state: Option<InitialState>,
     /// The header's f0 and Q as calibrated (null for quasi-static recordings).

@@ -14,7 +14,7 @@ use super::candidates::Env;
 use super::explain::explain;
 use super::json_report as jr;
 use super::locate::{locate, phases, spans, Located, Phase, Span};
-use super::model::Trace;
+use super::model::{Input, Trace};
 use super::noise::HeldOut;
 use super::problem::{Problem, BLOCK};
 use super::search::{c_a_si, k_a_si, Search, SearchOptions, DETECTION_FLOOR};
@@ -362,15 +362,17 @@ impl Diagnosis {
             mode: rec.meta.mode.as_str().into(),
             nominal: jr::Nominal {
                 model: "M·Z̈ = K·(U − Z) + C·(U̇ − Ż) + F_ts, D = U − Z + d0, \
-                        F_ts = k_a·V(δ) − c_a·A(δ)·Ż (sphere on the bed's continuum)"
+                        F_ts = k_a·V(δ) − c_a·A(δ)·Ż (sphere on the element bed: V, A of \
+                        its continuum limit or of a lattice of elements, see `bed`)"
                     .into(),
                 dynamics: p.dynamics_source.clone(),
-                input_between_samples: if !p.inst.dynamic() {
+                input_between_samples: if !p.inst.dynamic() && s.nominal.nominal.input == Input::Held {
                     "not used (quasi-static)"
                 } else {
                     s.nominal.nominal.input.describe()
                 }
                 .into(),
+                bed: s.nominal.nominal.bed.describe(),
                 initial_state,
                 calibration,
                 offset_m: (s.nominal.nominal.offset * LENGTH).into(),

@@ -146,11 +146,23 @@ impl TapProtocol {
 /// The bed is the plant's lattice at pitch R/20 (R = 300 nm), k_a = 3×10¹¹ N/m³,
 /// c_a = 6×10⁷ N·s/m³ (the paper's cell), the grid offset under the tip `offset` (pitches).
 pub fn mid_oscillation_tap(p: &TapProtocol, seed: u64, offset: [f64; 2]) -> (Recording, Vec<f64>) {
+    mid_oscillation_tap_on(p, seed, offset, 20)
+}
+
+/// [`mid_oscillation_tap`] on a lattice of pitch R/`per_radius` (3: the paper's 100 nm under
+/// its 300 nm tip).
+pub fn mid_oscillation_tap_on(
+    p: &TapProtocol,
+    seed: u64,
+    offset: [f64; 2],
+    per_radius: usize,
+) -> (Recording, Vec<f64>) {
     let lever = Cantilever::PAPER;
     let r_tip = 300e-9;
     let (k_a, c_a) = (3e11, 6e7);
-    let pitch = r_tip / 20.0;
-    let half = 23usize;
+    let pitch = r_tip / per_radius as f64;
+    // Three pitches of margin beyond the tip radius (23 at R/20).
+    let half = per_radius + 3;
     let n = 2 * half + 1;
     let origin = [
         -(half as f64 * pitch) + offset[0] * pitch,
