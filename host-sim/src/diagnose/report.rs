@@ -366,7 +366,9 @@ impl Diagnosis {
                         its continuum limit or of a lattice of elements, see `bed`)"
                     .into(),
                 dynamics: p.dynamics_source.clone(),
-                input_between_samples: if !p.inst.dynamic() && s.nominal.nominal.input == Input::Held {
+                input_between_samples: if !p.inst.dynamic()
+                    && s.nominal.nominal.input == Input::Held
+                {
                     "not used (quasi-static)"
                 } else {
                     s.nominal.nominal.input.describe()
