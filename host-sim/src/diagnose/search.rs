@@ -24,7 +24,6 @@ use super::fit::{levenberg_marquardt, linear_least_squares, ssr, LmOptions, Para
 use super::model::{simulate, Input, Nominal, Trace};
 use super::noise::{held_out_test, HeldOut, NoiseModel, MAX_ORDER};
 use super::problem::Problem;
-use crate::identify::signal::brent_min;
 use crate::plant::effects::{Effect, EffectKind};
 use visco_core::units::{DAMPING, FORCE, LENGTH, TIME};
 
@@ -1064,29 +1063,32 @@ impl Problem {
     }
 }
 
-/// Bracketed search of `f` between `lo` and `hi` (in ln when both are positive) by
-/// [`brent_min`], to the bracket that `iterations` golden-section steps would leave
-/// (0.618^iterations of it) and at most the 2·`iterations` evaluations those steps took when
-/// each drew two new points; `f` is told every point it is evaluated at (callers keep the
-/// best).
+/// Golden-section search of `f` between `lo` and `hi` (in ln when both are positive) for
+/// `iterations` steps; `f` is told every point it is evaluated at (callers keep the best).
 fn golden_probe(lo: f64, hi: f64, iterations: usize, mut f: impl FnMut(f64) -> f64) {
     if !(hi > lo) {
         return;
     }
     let log = lo > 0.0;
-    let (a, b) = if log { (lo.ln(), hi.ln()) } else { (lo, hi) };
-    let width = (b - a) * GOLDEN.powi(iterations as i32);
-    let _ = brent_min(
-        |x| f(if log { x.exp() } else { x }),
-        a,
-        b,
-        width,
-        2 * iterations,
-    );
+    type Map = fn(f64) -> f64;
+    let (fwd, back): (Map, Map) = if log {
+        (f64::ln, f64::exp)
+    } else {
+        (|x| x, |x| x)
+    };
+    let (mut a, mut b) = (fwd(lo), fwd(hi));
+    let gr = (5f64.sqrt() - 1.0) / 2.0;
+    for _ in 0..iterations {
+        let x1 = b - gr * (b - a);
+        let x2 = a + gr * (b - a);
+        let (s1, s2) = (f(back(x1)), f(back(x2)));
+        if s1 < s2 {
+            b = x2;
+        } else {
+            a = x1;
+        }
+    }
 }
-
-/// The golden section's shrink per step, (√5 − 1)/2.
-const GOLDEN: f64 = 0.618_033_988_749_894_8;
 
 /// SI helpers for reports.
 pub fn k_a_si(k_a: f64) -> f64 {

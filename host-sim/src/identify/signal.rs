@@ -67,8 +67,8 @@ pub fn moving_average(v: &[f64], half: usize) -> Vec<f64> {
         .collect()
 }
 
-/// Minimum of `f` on `[lo, hi]`: a grid of `grid` intervals, then [`brent_min`] between the
-/// best grid point's neighbours (robust to a few local minima), to ~1e-9 of that bracket.
+/// Minimum of `f` on `[lo, hi]`: a grid of `grid` intervals, then golden section around the
+/// best grid point (robust to a few local minima, exact to ~1e-9 of the bracket).
 pub fn minimize(f: impl Fn(f64) -> f64, lo: f64, hi: f64, grid: usize) -> f64 {
     let xs: Vec<f64> = (0..=grid)
         .map(|j| lo + (hi - lo) * j as f64 / grid as f64)
@@ -80,76 +80,31 @@ pub fn minimize(f: impl Fn(f64) -> f64, lo: f64, hi: f64, grid: usize) -> f64 {
             best = (v, j);
         }
     }
-    let (a, b) = (xs[best.1.saturating_sub(1)], xs[(best.1 + 1).min(grid)]);
-    // The golden section this replaced ran 40 steps (43 evaluations) to a bracket of
-    // 0.618⁴⁰ ≈ 4e-9 of (a, b); Brent stops at the same width, within the same budget.
-    let (x, fx, _) = brent_min(f, a, b, 1e-9 * (b - a), 43);
-    if fx <= best.0 {
+    let (mut a, mut b) = (xs[best.1.saturating_sub(1)], xs[(best.1 + 1).min(grid)]);
+    let g = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
+    let (mut f1, mut f2) = (f(x1), f(x2));
+    for _ in 0..40 {
+        if f1 < f2 {
+            b = x2;
+            x2 = x1;
+            f2 = f1;
+            x1 = b - g * (b - a);
+            f1 = f(x1);
+        } else {
+            a = x1;
+            x1 = x2;
+            f1 = f2;
+            x2 = a + g * (b - a);
+            f2 = f(x2);
+        }
+    }
+    let x = 0.5 * (a + b);
+    if f(x) <= best.0 {
         x
     } else {
         xs[best.1]
     }
-}
-
-/// Brent's bracketing minimiser (argmin's `BrentOpt`: golden section that reuses its
-/// interior point, with parabolic steps where the function is smooth — one evaluation per
-/// step) of `f` on `[lo, hi]`, until the bracket is about `width` wide or `max_evals`
-/// evaluations are spent. Returns the best point seen, its value and the evaluations made. A
-/// point where `f` is not finite counts as a very large finite value, so the parabola stays
-/// defined and the search moves away from it.
-pub fn brent_min(
-    mut f: impl FnMut(f64) -> f64,
-    lo: f64,
-    hi: f64,
-    width: f64,
-    max_evals: usize,
-) -> (f64, f64, usize) {
-    use argmin::core::{CostFunction, Error, Executor};
-    use argmin::solver::brent::BrentOpt;
-    use std::cell::RefCell;
-
-    /// Large enough to lose every comparison, small enough that Brent's parabola through it
-    /// (products of it with bracket widths) stays finite.
-    const UNEVALUABLE: f64 = 1e250;
-
-    struct Cost<'a> {
-        f: RefCell<&'a mut dyn FnMut(f64) -> f64>,
-        best: &'a RefCell<(f64, f64, usize)>,
-    }
-    impl CostFunction for Cost<'_> {
-        type Param = f64;
-        type Output = f64;
-        fn cost(&self, x: &f64) -> Result<f64, Error> {
-            let v = (self.f.borrow_mut())(*x);
-            let mut best = self.best.borrow_mut();
-            best.2 += 1;
-            if v < best.1 {
-                (best.0, best.1) = (*x, v);
-            }
-            Ok(if v.is_finite() { v } else { UNEVALUABLE })
-        }
-    }
-
-    if !(hi > lo) || max_evals == 0 {
-        return (lo, f64::INFINITY, 0);
-    }
-    // The best point is kept outside the solver, so it survives whatever the run returns.
-    let best = RefCell::new((0.5 * (lo + hi), f64::INFINITY, 0));
-    let cost = Cost {
-        f: RefCell::new(&mut f),
-        best: &best,
-    };
-    // BrentOpt stops when the bracket is within 4·tol of its point, tol = eps·|x| + t: a
-    // width-only tolerance (eps = 0) because callers search ln(value) as well as values.
-    let solver = BrentOpt::new(lo, hi).set_tolerance(0.0, 0.25 * width.max(0.0));
-    // One evaluation to start, one per iteration.
-    let iters = (max_evals - 1) as u64;
-    // The cost function never fails, so neither does the run; its result adds nothing to
-    // the best point already recorded.
-    let _ = Executor::new(cost, solver)
-        .configure(|state| state.max_iters(iters))
-        .run();
-    best.into_inner()
 }
 
 /// Least squares of `y = a·x₁ + b·x₂` with `b ≥ 0`, from the normal-equation sums
