@@ -6,6 +6,12 @@
 //! that one unit of x is a comparable change for every parameter and the finite-difference
 //! step can be the same. Bounds are kept by clamping each trial point (projected LM); a
 //! parameter pinned at a bound keeps its column, so the step is still solved jointly.
+//!
+//! Every linear solve is a Householder QR (nalgebra) of the least-squares matrix itself, not
+//! of its normal equations: the columns span many decades (a bed stiffness in nN/nm³ beside a
+//! height in nm), and forming `JᵀJ` would square that condition number.
+
+use nalgebra::{DMatrix, DVector};
 
 /// One parameter of a fit.
 #[derive(Clone, Debug, PartialEq)]
@@ -171,25 +177,35 @@ pub fn levenberg_marquardt(
             };
             jac.push(col);
         }
-        // Normal equations JᵀJ δ = −Jᵀr.
-        let mut jtj = vec![vec![0.0; np]; np];
-        let mut jtr = vec![0.0; np];
-        for a in 0..np {
-            jtr[a] = jac[a].iter().zip(&r).map(|(j, rr)| j * rr).sum();
-            for b in a..np {
-                let s: f64 = jac[a].iter().zip(&jac[b]).map(|(x, y)| x * y).sum();
-                jtj[a][b] = s;
-                jtj[b][a] = s;
-            }
-        }
+        // The damped step minimises ‖Jδ + r‖² + λ·Σ d_k δ_k² with d_k = ‖J_k‖² (+1e-12 so a
+        // column that does not move the residual stays bounded): the normal equations
+        // (JᵀJ + λD)δ = −Jᵀr, solved without forming JᵀJ. J = QR once per Jacobian; then per
+        // λ only the small stacked system [R; √(λD)] δ ≈ [−Qᵀr; 0] (MINPACK's lmpar idea).
+        let n = r.len();
+        let j = DMatrix::from_fn(n, np, |i, k| jac[k][i]);
+        let d: Vec<f64> = (0..np)
+            .map(|k| {
+                let dk = j.column(k).norm_squared();
+                dk + 1e-12 * (1.0 + dk)
+            })
+            .collect();
+        let qr = j.qr();
+        let r_factor = qr.r();
+        let mut qtr = DVector::from_column_slice(&r);
+        qr.q_tr_mul(&mut qtr);
+        let rows = r_factor.nrows();
         let mut improved = false;
         for _ in 0..12 {
-            let mut m = jtj.clone();
-            for (a, row) in m.iter_mut().enumerate() {
-                row[a] += lambda * (jtj[a][a] + 1e-12 * (1.0 + jtj[a][a]));
+            let mut a = DMatrix::zeros(rows + np, np);
+            a.rows_mut(0, rows).copy_from(&r_factor);
+            let mut rhs = DVector::zeros(rows + np);
+            for i in 0..rows {
+                rhs[i] = -qtr[i];
             }
-            let rhs: Vec<f64> = jtr.iter().map(|v| -v).collect();
-            let Some(delta) = solve(m, rhs) else {
+            for (k, dk) in d.iter().enumerate() {
+                a[(rows + k, k)] = (lambda * dk).sqrt();
+            }
+            let Some(delta) = qr_least_squares(a, rhs) else {
                 lambda *= 10.0;
                 continue;
             };
@@ -233,90 +249,155 @@ pub fn levenberg_marquardt(
     }
 }
 
-/// Solves the symmetric system by Gaussian elimination with partial pivoting.
-pub fn solve(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
-    let n = b.len();
-    for col in 0..n {
-        let piv = (col..n).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
-        if !(a[piv][col].abs() > 1e-300) {
-            return None;
-        }
-        a.swap(col, piv);
-        b.swap(col, piv);
-        for row in col + 1..n {
-            let f = a[row][col] / a[col][col];
-            if f != 0.0 {
-                let (top, bottom) = a.split_at_mut(row);
-                for (x, &y) in bottom[0][col..n].iter_mut().zip(&top[col][col..n]) {
-                    *x -= f * y;
-                }
-                b[row] -= f * b[col];
-            }
-        }
+/// Least squares `min ‖b − A·x‖` of a tall matrix by Householder QR; `None` when `A` has fewer
+/// rows than columns, a zero on R's diagonal (a column that the others repeat exactly) or a
+/// result that is not finite.
+fn qr_least_squares(a: DMatrix<f64>, mut b: DVector<f64>) -> Option<DVector<f64>> {
+    let p = a.ncols();
+    if a.nrows() < p {
+        return None;
     }
-    let mut x = vec![0.0; n];
-    for i in (0..n).rev() {
-        let s: f64 = (i + 1..n).map(|k| a[i][k] * x[k]).sum();
-        x[i] = (b[i] - s) / a[i][i];
-        if !x[i].is_finite() {
-            return None;
-        }
-    }
-    Some(x)
+    let qr = a.qr();
+    qr.q_tr_mul(&mut b);
+    let x = qr.r().solve_upper_triangular(&b.rows(0, p))?;
+    x.iter().all(|v| v.is_finite()).then_some(x)
 }
 
-/// Linear least squares `min ‖y − X·β‖` by the normal equations with a tiny ridge; columns
-/// given as vectors. `nonneg[j]` keeps β_j ≥ 0 (active-set: a negative one is dropped and the
-/// rest re-solved). Returns β and the residual sum of squares.
+/// Ridge of the linear least squares, relative to each column's squared norm: 1e-12, as the
+/// normal-equation solver this replaced had. It only matters for columns that nearly repeat
+/// one another (an effect's amplitude column beside a calibration's), which it keeps bounded.
+const RIDGE: f64 = 1e-12;
+
+/// Linear least squares `min ‖y − X·β‖` with `β_j ≥ 0` where `nonneg[j]`; columns given as
+/// vectors. Returns β and the residual sum of squares `‖y − X·β‖²`.
+///
+/// Lawson and Hanson's active-set NNLS (Solving Least Squares Problems, 1974, ch. 23),
+/// generalised to columns without a constraint (always in the passive set): a constrained
+/// coefficient enters when the gradient asks for it and leaves when an interpolation step
+/// brings it to zero, and can come back later — the true constrained optimum, not the
+/// "drop the first negative and re-solve" approximation. Each subproblem is a Householder QR
+/// of the unit-norm columns (so a column's scale does not matter) with the [`RIDGE`] rows;
+/// a zero or non-finite column gets β = 0.
 pub fn linear_least_squares(cols: &[Vec<f64>], y: &[f64], nonneg: &[bool]) -> (Vec<f64>, f64) {
     let p = cols.len();
-    let mut active: Vec<bool> = vec![true; p];
-    loop {
-        let idx: Vec<usize> = (0..p).filter(|&j| active[j]).collect();
-        let q = idx.len();
-        let mut beta = vec![0.0; p];
-        if q > 0 {
-            let mut m = vec![vec![0.0; q]; q];
-            let mut rhs = vec![0.0; q];
-            for a in 0..q {
-                rhs[a] = cols[idx[a]].iter().zip(y).map(|(x, v)| x * v).sum();
-                for b in a..q {
-                    let s: f64 = cols[idx[a]]
-                        .iter()
-                        .zip(&cols[idx[b]])
-                        .map(|(x, z)| x * z)
-                        .sum();
-                    m[a][b] = s;
-                    m[b][a] = s;
+    let m = y.len();
+    let norms: Vec<f64> = cols
+        .iter()
+        .map(|c| c.iter().map(|v| v * v).sum::<f64>().sqrt())
+        .collect();
+    let usable: Vec<bool> = norms.iter().map(|n| n.is_finite() && *n > 0.0).collect();
+    // [X·N⁻¹; √RIDGE·I] and [y; 0]: unit-norm columns, ridge rows below.
+    let a = DMatrix::from_fn(m + p, p, |i, j| {
+        if !usable[j] {
+            0.0
+        } else if i < m {
+            cols[j].get(i).copied().unwrap_or(0.0) / norms[j]
+        } else if i - m == j {
+            RIDGE.sqrt()
+        } else {
+            0.0
+        }
+    });
+    let mut yb = DVector::zeros(m + p);
+    for (i, v) in y.iter().enumerate() {
+        yb[i] = *v;
+    }
+    // Solve on the passive set `set`, zeros elsewhere.
+    let solve_on = |set: &[usize]| -> Option<Vec<f64>> {
+        let mut x = vec![0.0; p];
+        if set.is_empty() {
+            return Some(x);
+        }
+        let sub = a.select_columns(set.iter());
+        let z = qr_least_squares(sub, yb.clone())?;
+        for (k, &j) in set.iter().enumerate() {
+            x[j] = z[k];
+        }
+        Some(x)
+    };
+    // Start: every unconstrained column passive, every constrained one at zero (feasible).
+    let mut passive: Vec<usize> = (0..p).filter(|&j| usable[j] && !nonneg[j]).collect();
+    let mut x = solve_on(&passive).unwrap_or_else(|| vec![0.0; p]);
+    let y_norm = yb.norm();
+    // A gradient component below this is rounding: 10·ε·max(m, p)·‖y‖ (scipy's nnls uses the
+    // same form of tolerance).
+    let tol = 10.0 * f64::EPSILON * (m.max(p) as f64) * y_norm;
+    // Coefficients that entered and were refused at once (a step of zero length): not offered
+    // again until x moves, so the loop cannot cycle on a degenerate column.
+    let mut refused = vec![false; p];
+    // Each outer step adds one coefficient; Lawson and Hanson bound it by 3p in practice.
+    for _ in 0..3 * p + 3 {
+        let resid = &yb - &a * DVector::from_column_slice(&x);
+        let w = a.tr_mul(&resid);
+        let enter = (0..p)
+            .filter(|&j| usable[j] && nonneg[j] && !refused[j] && !passive.contains(&j))
+            .max_by(|&i, &j| w[i].total_cmp(&w[j]));
+        let Some(t) = enter.filter(|&t| w[t] > tol) else {
+            break;
+        };
+        passive.push(t);
+        // Inner loop: at most every constrained coefficient leaves once.
+        let mut moved = false;
+        for _ in 0..=p {
+            let Some(z) = solve_on(&passive) else {
+                passive.retain(|&j| j != t);
+                refused[t] = true;
+                break;
+            };
+            let blocking: Vec<usize> = passive
+                .iter()
+                .copied()
+                .filter(|&j| nonneg[j] && z[j] <= 0.0)
+                .collect();
+            if blocking.is_empty() {
+                moved = true;
+                x = z;
+                break;
+            }
+            // Step from x towards z as far as feasibility allows, then release every
+            // constrained coefficient that reached zero.
+            let (mut alpha, mut first) = (f64::INFINITY, blocking[0]);
+            for &j in &blocking {
+                let s = x[j] / (x[j] - z[j]);
+                if s < alpha {
+                    (alpha, first) = (s, j);
                 }
             }
-            for (a, row) in m.iter_mut().enumerate() {
-                row[a] += 1e-12 * row[a].abs() + 1e-300;
+            let alpha = alpha.clamp(0.0, 1.0);
+            for &j in &passive {
+                x[j] += alpha * (z[j] - x[j]);
             }
-            if let Some(sol) = solve(m, rhs) {
-                for (a, &j) in idx.iter().enumerate() {
-                    beta[j] = sol[a];
+            if alpha > 0.0 {
+                moved = true;
+            }
+            x[first] = 0.0;
+            passive.retain(|&j| !(nonneg[j] && (j == first || x[j] <= 0.0)));
+            for j in 0..p {
+                if !passive.contains(&j) && nonneg[j] {
+                    x[j] = 0.0;
                 }
             }
         }
-        let bad = (0..p).find(|&j| active[j] && nonneg[j] && beta[j] < 0.0);
-        match bad {
-            Some(j) => active[j] = false,
-            None => {
-                let mut s = 0.0;
-                for (i, v) in y.iter().enumerate() {
-                    let mut e = *v;
-                    for j in 0..p {
-                        if beta[j] != 0.0 {
-                            e -= beta[j] * cols[j][i];
-                        }
-                    }
-                    s += e * e;
-                }
-                return (beta, s);
-            }
+        if moved {
+            refused.iter_mut().for_each(|r| *r = false);
+        } else if !passive.contains(&t) {
+            refused[t] = true;
         }
     }
+    let beta: Vec<f64> = (0..p)
+        .map(|j| if usable[j] { x[j] / norms[j] } else { 0.0 })
+        .collect();
+    let mut s = 0.0;
+    for (i, v) in y.iter().enumerate() {
+        let mut e = *v;
+        for (j, b) in beta.iter().enumerate() {
+            if *b != 0.0 {
+                e -= b * cols[j].get(i).copied().unwrap_or(0.0);
+            }
+        }
+        s += e * e;
+    }
+    (beta, s)
 }
 
 #[cfg(test)]
@@ -376,5 +457,77 @@ mod tests {
         let (b, s) = linear_least_squares(&[x1, x2], &y, &[false, true]);
         assert_eq!(b[1], 0.0);
         assert!(s > 1.0);
+    }
+
+    /// A problem where "drop the first negative coefficient and re-solve" (the solver this
+    /// replaced) ends at β = 0 with SSR 63, while the constrained optimum keeps the first
+    /// coefficient: every unconstrained coefficient is negative (−0.41, −0.55, −1.34).
+    /// Reference: scipy 1.17.1 `scipy.optimize.nnls` (β, and `rnorm²`) and, with a fourth,
+    /// unconstrained column, `lsq_linear(method="bvls", tol=1e-15)`, printed with `%.17e`.
+    /// Tolerance 1e-10 relative: the 1e-12 ridge moves β by ~1e-12·κ², κ ≈ 4 here.
+    #[test]
+    fn nonnegative_least_squares_matches_scipy_where_dropping_the_first_negative_fails() {
+        #[rustfmt::skip]
+        let rows: [[f64; 3]; 6] = [
+            [3.0, 2.0, -3.0], [-1.0, 4.0, -5.0], [-5.0, 5.0, -1.0],
+            [1.0, 2.0, 0.0], [-4.0, 3.0, 0.0], [1.0, -5.0, 5.0],
+        ];
+        let y = [3.0, 4.0, 3.0, -3.0, -2.0, -4.0];
+        let cols: Vec<Vec<f64>> = (0..3).map(|j| rows.iter().map(|r| r[j]).collect()).collect();
+        let close = |got: f64, want: f64| (got - want).abs() <= 1e-10 * want.abs().max(1e-300);
+        let (b, s) = linear_least_squares(&cols, &y, &[true; 3]);
+        let want = [3.25888324873096435e-01, 6.91370558375634436e-01, 0.0];
+        for (g, w) in b.iter().zip(want) {
+            assert!(close(*g, w) || (w == 0.0 && *g == 0.0), "{b:?} vs {want:?}");
+        }
+        assert!(close(s, 3.48213197969543202e+01), "SSR {s}");
+        // The same with an unconstrained alternating column: it stays in the solution.
+        let mut cols4 = cols.clone();
+        cols4.push((0..6).map(|i| if i % 2 == 0 { 1.0 } else { -1.0 }).collect());
+        let (b, s) = linear_least_squares(&cols4, &y, &[true, true, true, false]);
+        let want = [
+            3.77525074163017449e-01,
+            6.45783302726373298e-01,
+            0.0,
+            6.38437632433959790e-01,
+        ];
+        for (g, w) in b.iter().zip(want) {
+            assert!(close(*g, w) || (w == 0.0 && *g == 0.0), "{b:?} vs {want:?}");
+        }
+        assert!(close(s, 3.28684136177426183e+01), "SSR {s}");
+    }
+
+    /// 200 random problems (columns spanning four decades, most with some unconstrained
+    /// coefficients negative): the result satisfies the Karush–Kuhn–Tucker conditions, which
+    /// characterise the constrained optimum: β ≥ 0, and the gradient Xᵀ(y − Xβ) is zero
+    /// where β > 0 and not positive where β = 0 (to rounding, 1e-9 of ‖X_j‖·‖y‖). Dropping
+    /// the first negative coefficient for good fails the second condition wherever that
+    /// coefficient belonged in the solution.
+    #[test]
+    fn nonnegative_least_squares_meets_the_optimality_conditions() {
+        let mut rng = crate::plant::rng::NormalRng::new(5);
+        for _ in 0..200 {
+            let (m, p) = (12, 5);
+            let cols: Vec<Vec<f64>> = (0..p)
+                .map(|j| (0..m).map(|_| rng.normal() * 10f64.powi(j as i32 - 2)).collect())
+                .collect();
+            let y: Vec<f64> = (0..m).map(|_| rng.normal()).collect();
+            let (b, _) = linear_least_squares(&cols, &y, &[true; 5]);
+            let y_norm = y.iter().map(|v| v * v).sum::<f64>().sqrt();
+            for j in 0..p {
+                assert!(b[j] >= 0.0, "{b:?}");
+                let resid: Vec<f64> = (0..m)
+                    .map(|i| y[i] - (0..p).map(|k| b[k] * cols[k][i]).sum::<f64>())
+                    .collect();
+                let c_norm = cols[j].iter().map(|v| v * v).sum::<f64>().sqrt();
+                let g: f64 = cols[j].iter().zip(&resid).map(|(a, r)| a * r).sum::<f64>();
+                let scale = 1e-9 * c_norm * y_norm;
+                if b[j] > 0.0 {
+                    assert!(g.abs() <= scale, "gradient {g:e} at a positive β_{j}");
+                } else {
+                    assert!(g <= scale, "gradient {g:e} would raise β_{j} from 0");
+                }
+            }
+        }
     }
 }
