@@ -56,7 +56,12 @@ fn mgh09(b: &[f64], x: f64) -> (f64, Vec<f64>) {
     let d = x * x + x * b[2] + b[3];
     (
         b[0] * n / d,
-        vec![n / d, b[0] * x / d, -b[0] * n * x / (d * d), -b[0] * n / (d * d)],
+        vec![
+            n / d,
+            b[0] * x / d,
+            -b[0] * n * x / (d * d),
+            -b[0] * n / (d * d),
+        ],
     )
 }
 
@@ -68,7 +73,15 @@ fn thurber(b: &[f64], x: f64) -> (f64, Vec<f64>) {
     let f = n / d;
     (
         f,
-        vec![1.0 / d, x / d, x2 / d, x3 / d, -f * x / d, -f * x2 / d, -f * x3 / d],
+        vec![
+            1.0 / d,
+            x / d,
+            x2 / d,
+            x3 / d,
+            -f * x / d,
+            -f * x2 / d,
+            -f * x3 / d,
+        ],
     )
 }
 
@@ -192,7 +205,15 @@ fn diagnose_lm(problem: &Nist) -> (Vec<f64>, usize) {
         .start
         .iter()
         .enumerate()
-        .map(|(k, &b)| Param::linear(format!("b{}", k + 1), b, f64::NEG_INFINITY, f64::INFINITY, b.abs()))
+        .map(|(k, &b)| {
+            Param::linear(
+                format!("b{}", k + 1),
+                b,
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                b.abs(),
+            )
+        })
         .collect();
     let opts = LmOptions {
         max_iterations: 500,

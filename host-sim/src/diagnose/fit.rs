@@ -473,7 +473,9 @@ mod tests {
             [1.0, 2.0, 0.0], [-4.0, 3.0, 0.0], [1.0, -5.0, 5.0],
         ];
         let y = [3.0, 4.0, 3.0, -3.0, -2.0, -4.0];
-        let cols: Vec<Vec<f64>> = (0..3).map(|j| rows.iter().map(|r| r[j]).collect()).collect();
+        let cols: Vec<Vec<f64>> = (0..3)
+            .map(|j| rows.iter().map(|r| r[j]).collect())
+            .collect();
         let close = |got: f64, want: f64| (got - want).abs() <= 1e-10 * want.abs().max(1e-300);
         let (b, s) = linear_least_squares(&cols, &y, &[true; 3]);
         let want = [3.25888324873096435e-01, 6.91370558375634436e-01, 0.0];
@@ -483,7 +485,11 @@ mod tests {
         assert!(close(s, 3.48213197969543202e+01), "SSR {s}");
         // The same with an unconstrained alternating column: it stays in the solution.
         let mut cols4 = cols.clone();
-        cols4.push((0..6).map(|i| if i % 2 == 0 { 1.0 } else { -1.0 }).collect());
+        cols4.push(
+            (0..6)
+                .map(|i| if i % 2 == 0 { 1.0 } else { -1.0 })
+                .collect(),
+        );
         let (b, s) = linear_least_squares(&cols4, &y, &[true, true, true, false]);
         let want = [
             3.77525074163017449e-01,
@@ -509,7 +515,11 @@ mod tests {
         for _ in 0..200 {
             let (m, p) = (12, 5);
             let cols: Vec<Vec<f64>> = (0..p)
-                .map(|j| (0..m).map(|_| rng.normal() * 10f64.powi(j as i32 - 2)).collect())
+                .map(|j| {
+                    (0..m)
+                        .map(|_| rng.normal() * 10f64.powi(j as i32 - 2))
+                        .collect()
+                })
                 .collect();
             let y: Vec<f64> = (0..m).map(|_| rng.normal()).collect();
             let (b, _) = linear_least_squares(&cols, &y, &[true; 5]);
