@@ -121,6 +121,7 @@ fn the_sweep_report_matches_its_schema() {
         worst_rms_pct: f64::NAN,
         failed: 0,
         simulated_s: 1.0,
+        block_samples: 16,
     };
     let r = SweepReport {
         schema_version: visco::experiment::sweep::SCHEMA_VERSION,
