@@ -1735,6 +1735,19 @@ impl<T: SineTable> Controller<T> {
 mod accumulator_tests {
     use super::Accumulator;
 
+    /// Means equal to rounding (1e-12 relative), entry by entry.
+    fn assert_means_equal(a: &Accumulator<f64>, b: &Accumulator<f64>) {
+        let (a, b) = (a.mean(), b.mean());
+        for i in 0..4 {
+            assert!(
+                (a[i] - b[i]).abs() <= 1e-12 * a[i].abs().max(1.0),
+                "entry {i}: {} vs {}",
+                a[i],
+                b[i]
+            );
+        }
+    }
+
     /// The per-block sums of θ̂ give the mean of the per-sample sums: θ̂ held over blocks of
     /// uneven length (a restart mid-block included), the other entries per sample. In f64 the
     /// two differ only by rounding (n·x against n additions of x).
@@ -1766,16 +1779,8 @@ mod accumulator_tests {
             per_sample.add(v, 0);
             held.add_held::<3>(v, 0);
         }
-        let (a, b) = (per_sample.mean(), held.mean());
         assert_eq!((per_sample.n, per_sample.flags), (held.n, held.flags));
-        for i in 0..4 {
-            assert!(
-                (a[i] - b[i]).abs() <= 1e-12 * a[i].abs().max(1.0),
-                "entry {i}: {} vs {}",
-                a[i],
-                b[i]
-            );
-        }
+        assert_means_equal(&per_sample, &held);
         // An SVE-style accumulator (two held entries): the third and fourth per sample.
         let (mut p2, mut h2) = (Accumulator::<f64>::default(), Accumulator::<f64>::default());
         for k in 0..100u32 {
@@ -1787,14 +1792,6 @@ mod accumulator_tests {
             p2.add(v, 0);
             h2.add_held::<2>(v, 0);
         }
-        let (a, b) = (p2.mean(), h2.mean());
-        for i in 0..4 {
-            assert!(
-                (a[i] - b[i]).abs() <= 1e-12 * a[i].abs().max(1.0),
-                "entry {i}: {} vs {}",
-                a[i],
-                b[i]
-            );
-        }
+        assert_means_equal(&p2, &h2);
     }
 }
