@@ -109,6 +109,9 @@ pub struct Nominal {
     /// The header's f0 and Q as calibrated (null for quasi-static recordings).
     pub calibration: Option<Calibration>,
     pub offset_m: Num,
+    /// A force curve's optical-interference wave in U, found on the free approach as
+    /// `identify` finds it and part of the nominal's baseline (null when there is none).
+    pub baseline_wave: Option<crate::identify::report::BaselineWave>,
     pub contacts: Vec<ContactJson>,
     pub noise: NoiseJson,
 }

@@ -58,6 +58,12 @@ pub struct Problem {
     /// The Huber scale (nm) when the fit is robust (a recording dominated by misfit, see
     /// `search`); `None`: least squares.
     pub huber_nm: Option<f64>,
+    /// A force curve's optical-interference wave in U, found on its free approach as
+    /// `identify` finds it, with its baseline; `data.d` holds the recording less this wave,
+    /// so every model the search fits has it as part of the nominal's baseline.
+    pub baseline_wave: Option<crate::identify::force_curve::Baseline>,
+    /// The wave per sample (nm; empty without one): what `data.d` had taken out.
+    pub wave_nm: Vec<f64>,
 }
 
 impl Problem {
@@ -71,7 +77,16 @@ impl Problem {
         }
         let t: Vec<f64> = rec.t_s.iter().map(|v| v / TIME).collect();
         let u: Vec<f64> = rec.u_m.iter().map(|v| v / LENGTH).collect();
-        let d: Vec<f64> = rec.d_m.iter().map(|v| v / LENGTH).collect();
+        let mut d: Vec<f64> = rec.d_m.iter().map(|v| v / LENGTH).collect();
+        // A force curve's interference wave belongs to the baseline, not to the physics of the
+        // contact: it is found on the free approach (as identify finds it) and taken out.
+        let baseline_wave = interference_wave(rec);
+        let wave_nm: Vec<f64> = baseline_wave.as_ref().map_or(Vec::new(), |b| {
+            rec.u_m.iter().map(|&x| b.wave_at(x) / LENGTH).collect()
+        });
+        for (x, w) in d.iter_mut().zip(&wave_nm) {
+            *x -= w;
+        }
         let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
         dts.sort_by(f64::total_cmp);
         let dt_us = dts[dts.len() / 2];
@@ -183,7 +198,23 @@ impl Problem {
             unit_xy_m,
             unit_rows,
             huber_nm: None,
+            baseline_wave,
+            wave_nm,
         })
+    }
+
+    /// The recorded D at sample `i` (nm): `data.d` with the baseline wave put back.
+    pub fn recorded_nm(&self, i: usize) -> f64 {
+        self.data.d[i] + self.wave_nm.get(i).copied().unwrap_or(0.0)
+    }
+
+    /// A simulated D (nm) with the baseline wave added: the model a user compares with the
+    /// recording.
+    pub fn with_wave(&self, mut sim: Vec<f64>) -> Vec<f64> {
+        for (x, w) in sim.iter_mut().zip(&self.wave_nm) {
+            *x += w;
+        }
+        sim
     }
 
     /// Smoothing half-width (samples) that removes an excitation and most noise but keeps a
@@ -307,6 +338,19 @@ impl Problem {
     pub fn fs_hz(&self) -> f64 {
         1.0 / (self.dt_us * TIME)
     }
+}
+
+/// The free approach's baseline of a force curve when it carries an interference wave
+/// (`identify::baseline`); `None` for other modes, without a wave, or when the curve's free
+/// part cannot be found (the search then works on the recording as it is).
+fn interference_wave(rec: &Recording) -> Option<crate::identify::force_curve::Baseline> {
+    if rec.meta.mode != crate::recording::Mode::ForceCurve {
+        return None;
+    }
+    let path = std::path::Path::new("recording");
+    let free =
+        crate::identify::force_curve::free_part(rec, path, crate::identify::CONTACT_SIGMA).ok()?;
+    free.baseline.wave.is_some().then_some(free.baseline)
 }
 
 /// Units of a recording without a `tap` column: one per contact episode. The deflection is

@@ -216,9 +216,13 @@ pub fn analyse(
     Ok(Diagnosis {
         rms_before_m: held_rms(&r_nom, &all),
         rms_after_m: held_rms(&r_fin, &all),
-        nominal_d_m: sim_nom.iter().map(|x| x * LENGTH).collect(),
-        final_d_m: sim_fin.iter().map(|x| x * LENGTH).collect(),
-        stages_d_m: stages_d,
+        // What a user compares with the recording: the models with the baseline wave.
+        nominal_d_m: with_wave_m(&p, &sim_nom),
+        final_d_m: with_wave_m(&p, &sim_fin),
+        stages_d_m: stages_d
+            .into_iter()
+            .map(|s| with_wave_m(&p, &s.iter().map(|x| x / LENGTH).collect::<Vec<f64>>()))
+            .collect(),
         problem: p,
         search,
         env,
@@ -227,6 +231,14 @@ pub fn analyse(
         phase,
         alpha: opts.alpha,
     })
+}
+
+/// A simulated D (nm) with the problem's baseline wave, in metres.
+fn with_wave_m(p: &Problem, sim_nm: &[f64]) -> Vec<f64> {
+    p.with_wave(sim_nm.to_vec())
+        .into_iter()
+        .map(|x| x * LENGTH)
+        .collect()
 }
 
 impl Diagnosis {
@@ -378,6 +390,10 @@ impl Diagnosis {
                 initial_state,
                 calibration,
                 offset_m: (s.nominal.nominal.offset * LENGTH).into(),
+                baseline_wave: p
+                    .baseline_wave
+                    .as_ref()
+                    .and_then(crate::identify::report::BaselineWave::of),
                 contacts,
                 noise: jr::NoiseJson {
                     model: "autoregressive, Burg, order by BIC".into(),
@@ -461,7 +477,7 @@ impl Diagnosis {
              residual_after_m,phase,held_out\n",
         );
         for i in 0..p.data.len() {
-            let d = p.data.d[i] * LENGTH;
+            let d = p.recorded_nm(i) * LENGTH;
             for v in [
                 p.data.t[i] * TIME,
                 p.data.u[i] * LENGTH,
@@ -581,7 +597,9 @@ fn points(t: &[f64], y: &[f64], a: usize, b: usize) -> Vec<(f64, f64)> {
 fn overview_plot(diag: &Diagnosis, name: &str) -> LinePlot {
     let p = &diag.problem;
     let t: Vec<f64> = p.data.t.iter().map(|x| x * TIME).collect();
-    let d: Vec<f64> = p.data.d.iter().map(|x| x * LENGTH).collect();
+    let d: Vec<f64> = (0..p.data.len())
+        .map(|i| p.recorded_nm(i) * LENGTH)
+        .collect();
     let n = t.len();
     let rb: Vec<f64> = d
         .iter()
@@ -640,7 +658,9 @@ fn effect_plot(diag: &Diagnosis, k: usize, name: &str) -> LinePlot {
         })
         .unwrap_or((0, n));
     let t: Vec<f64> = p.data.t.iter().map(|x| x * TIME).collect();
-    let d: Vec<f64> = p.data.d.iter().map(|x| x * LENGTH).collect();
+    let d: Vec<f64> = (0..p.data.len())
+        .map(|i| p.recorded_nm(i) * LENGTH)
+        .collect();
     let before = &diag.stages_d_m[k];
     let after = &diag.stages_d_m[k + 1];
     let rb: Vec<f64> = d.iter().zip(before).map(|(x, y)| x - y).collect();

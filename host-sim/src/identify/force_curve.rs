@@ -4,8 +4,8 @@
 //! A commercial force curve moves the base at µm/s and samples at kHz, far below the
 //! cantilever's resonance: its inertia `M·Z̈` and damping `C·Ḋ` are negligible next to `K·D`
 //! (the report computes both bounds), so the cantilever is a spring and the force on the tip is
-//! `F = −K·(D − D₀(U))` with `D₀` the free deflection (offset and linear tilt, from the free
-//! part of the approach). With a sphere of radius R pressed δ deep into the paper's bed of
+//! `F = −K·(D − D₀(U))` with `D₀` the free deflection (offset, linear tilt and an interference
+//! wave, from the free part of the approach). With a sphere of radius R pressed δ deep into the paper's bed of
 //! spring–damper elements (per-area spring `k_a = k_element/pitch²`, damper
 //! `c_a = c_element/pitch²`), summing the elements under the tip gives
 //!
@@ -22,7 +22,8 @@
 //!
 //! ## The contact point
 //! 1. Baseline: `D₀ = b₀ + b₁·(U − U_ref)` fitted on the free part of the approach (offset
-//!    only when that part is short); its robust σ is the noise.
+//!    only when that part is short), plus an optical-interference wave in U when the free part
+//!    shows one ([`super::baseline`]); its robust σ is the noise.
 //! 2. Threshold: going back from the end of the approach, the last sample still above
 //!    `−n·σ` (n = `--contact-sigma`, 5) — the tip stays in contact from the next one on.
 //! 3. Refined: h is the height that minimises the residual of the Kelvin–Voigt fit, searched
@@ -46,35 +47,13 @@
 use std::ops::Range;
 use std::path::Path;
 
+use super::baseline::fit_baseline;
+pub use super::baseline::{Baseline, Wave};
 use super::error::{IdentifyError, Result};
 use super::report as rep;
-use super::signal::{cap_volume, contact_area, minimize, moving_average, robust_sigma, FohLowPass};
+use super::signal::{cap_volume, contact_area, minimize, moving_average, FohLowPass};
 use super::Options;
 use crate::recording::{Metadata, Recording};
-
-/// The free deflection `D₀(U) = offset + tilt·(U − u_ref)`.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Baseline {
-    /// D₀ at `u_ref` (m).
-    pub offset_m: f64,
-    /// dD₀/dU (dimensionless); 0 when only an offset was fitted.
-    pub tilt: f64,
-    /// Reference base position (m): the end of the free part.
-    pub u_ref_m: f64,
-    /// Whether a tilt was fitted (the free part long enough).
-    pub linear: bool,
-    /// Robust σ of the free deflection about the baseline (m).
-    pub noise_m: f64,
-    /// Rows of the free part used.
-    pub free_rows: Range<usize>,
-}
-
-impl Baseline {
-    /// D₀ at base position `u`.
-    pub fn at(&self, u: f64) -> f64 {
-        self.offset_m + self.tilt * (u - self.u_ref_m)
-    }
-}
 
 /// What `identify` finds in a force curve.
 #[derive(Clone, Debug)]
@@ -194,44 +173,12 @@ pub fn identify(rec: &Recording, path: &Path, opts: &Options) -> Result<ForceCur
     let t = &rec.t_s;
     let u = &rec.u_m;
     let d = &rec.d_m;
-    let approach = find_approach(rec, path)?;
+    let FreePart {
+        approach,
+        baseline,
+        crossing,
+    } = free_part(rec, path, opts.contact_sigma)?;
     let mut notes = Vec::new();
-
-    // Baseline and threshold, iterated: the free part ends before the contact found.
-    let len = approach.len();
-    let mut free_end = approach.start + len / 2;
-    let mut baseline;
-    let mut crossing;
-    let mut iterations = 0;
-    loop {
-        baseline = fit_baseline(u, d, approach.start..free_end);
-        crossing = threshold_crossing(u, d, &baseline, &approach, opts.contact_sigma)
-            .map_err(|e| IdentifyError::new(path, e))?;
-        let (i_cross, i_zero) = crossing;
-        let guard = (2 * (i_cross - i_zero)).max(len / 20).max(10);
-        let new_end = i_zero.saturating_sub(guard).max(approach.start);
-        iterations += 1;
-        if new_end < approach.start + 5 {
-            return Err(IdentifyError::new(
-                path,
-                format!(
-                    "no free baseline before contact: the deflection leaves its free level \
-                     {} rows into the approach (row {})",
-                    i_zero - approach.start,
-                    i_zero + 1
-                ),
-            )
-            .with_fix("record the approach from further away from the sample"));
-        }
-        if new_end.abs_diff(free_end) <= len / 200 || iterations >= 6 {
-            free_end = new_end;
-            baseline = fit_baseline(u, d, approach.start..free_end);
-            crossing = threshold_crossing(u, d, &baseline, &approach, opts.contact_sigma)
-                .map_err(|e| IdentifyError::new(path, e))?;
-            break;
-        }
-        free_end = new_end;
-    }
     let (i_cross, i_zero) = crossing;
 
     // Force and tip position against the baseline.
@@ -389,6 +336,64 @@ pub fn identify(rec: &Recording, path: &Path, opts: &Options) -> Result<ForceCur
     })
 }
 
+/// The approach, its free part's baseline and the contact's threshold crossing
+/// `(i_cross, i_zero)`.
+pub struct FreePart {
+    pub approach: Range<usize>,
+    pub baseline: Baseline,
+    pub crossing: (usize, usize),
+}
+
+/// Finds the approach and fits the baseline on its free part, iterated with the contact's
+/// threshold crossing (`contact_sigma` σ): the free part ends before the contact found (steps
+/// 1–2 of the module docs). `diagnose` takes a force curve's interference wave from here.
+pub fn free_part(rec: &Recording, path: &Path, contact_sigma: f64) -> Result<FreePart> {
+    let u = &rec.u_m;
+    let d = &rec.d_m;
+    let approach = find_approach(rec, path)?;
+
+    // Baseline and threshold, iterated: the free part ends before the contact found.
+    let len = approach.len();
+    let mut free_end = approach.start + len / 2;
+    let mut baseline;
+    let mut crossing;
+    let mut iterations = 0;
+    loop {
+        baseline = fit_baseline(u, d, approach.start..free_end);
+        crossing = threshold_crossing(u, d, &baseline, &approach, contact_sigma)
+            .map_err(|e| IdentifyError::new(path, e))?;
+        let (i_cross, i_zero) = crossing;
+        let guard = (2 * (i_cross - i_zero)).max(len / 20).max(10);
+        let new_end = i_zero.saturating_sub(guard).max(approach.start);
+        iterations += 1;
+        if new_end < approach.start + 5 {
+            return Err(IdentifyError::new(
+                path,
+                format!(
+                    "no free baseline before contact: the deflection leaves its free level \
+                     {} rows into the approach (row {})",
+                    i_zero - approach.start,
+                    i_zero + 1
+                ),
+            )
+            .with_fix("record the approach from further away from the sample"));
+        }
+        if new_end.abs_diff(free_end) <= len / 200 || iterations >= 6 {
+            free_end = new_end;
+            baseline = fit_baseline(u, d, approach.start..free_end);
+            crossing = threshold_crossing(u, d, &baseline, &approach, contact_sigma)
+                .map_err(|e| IdentifyError::new(path, e))?;
+            break;
+        }
+        free_end = new_end;
+    }
+    Ok(FreePart {
+        approach,
+        baseline,
+        crossing,
+    })
+}
+
 /// The `segment` column and the `# segments:` line's (number, kind) pairs.
 type Segments = (Vec<f64>, Vec<(i64, String)>);
 
@@ -463,42 +468,6 @@ fn find_approach(rec: &Recording, path: &Path) -> Result<Range<usize>> {
     }
     debug_assert!(range.end <= n);
     Ok(range)
-}
-
-/// Least-squares offset (and tilt, when the free part spans enough rows) of D against U.
-fn fit_baseline(u: &[f64], d: &[f64], rows: Range<usize>) -> Baseline {
-    let uu = &u[rows.clone()];
-    let dd = &d[rows.clone()];
-    let n = uu.len() as f64;
-    let u_ref = *uu.last().unwrap_or(&0.0);
-    let linear = uu.len() >= 50;
-    let (offset, tilt) = if linear {
-        let mu = uu.iter().map(|x| x - u_ref).sum::<f64>() / n;
-        let md = dd.iter().sum::<f64>() / n;
-        let (mut sxx, mut sxy) = (0.0, 0.0);
-        for (x, y) in uu.iter().zip(dd) {
-            let dx = x - u_ref - mu;
-            sxx += dx * dx;
-            sxy += dx * (y - md);
-        }
-        let tilt = if sxx > 0.0 { sxy / sxx } else { 0.0 };
-        (md - tilt * mu, tilt)
-    } else {
-        (dd.iter().sum::<f64>() / n.max(1.0), 0.0)
-    };
-    let resid: Vec<f64> = uu
-        .iter()
-        .zip(dd)
-        .map(|(x, y)| y - offset - tilt * (x - u_ref))
-        .collect();
-    Baseline {
-        offset_m: offset,
-        tilt,
-        u_ref_m: u_ref,
-        linear,
-        noise_m: robust_sigma(&resid),
-        free_rows: rows,
-    }
 }
 
 /// `(i_cross, i_zero)`: the first row of the approach from which the deflection stays below
@@ -766,17 +735,13 @@ impl ForceCurveFit {
                 t_end_s: rec.t_s[self.approach.end - 1],
             },
             baseline: rep::Baseline {
-                kind: if b.linear {
-                    "offset + linear tilt in U"
-                } else {
-                    "offset"
-                }
-                .into(),
+                kind: b.describe().into(),
                 offset_m: b.offset_m.into(),
                 tilt_m_per_m: b.tilt.into(),
                 u_ref_m: b.u_ref_m.into(),
                 noise_m: b.noise_m.into(),
                 free_rows: rep::rows(b.free_rows.start as u64, b.free_rows.end as u64),
+                wave: rep::BaselineWave::of(b),
             },
             contact: rep::ForceCurveContact {
                 height_m: self.contact_height_m.into(),

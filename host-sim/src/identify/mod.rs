@@ -25,6 +25,10 @@
 //! passes (survey, estimation, fit) in memory bounded by the number of taps, lines and pixels;
 //! force curves are small and read whole.
 
+/// The default contact threshold in noise σ (`--contact-sigma`).
+pub const CONTACT_SIGMA: f64 = 5.0;
+
+pub mod baseline;
 pub mod dive;
 pub mod error;
 pub mod figures;
@@ -80,7 +84,7 @@ impl Options {
             readout_s: 10e-3,
             pixels: 50,
             lines: None,
-            contact_sigma: 5.0,
+            contact_sigma: CONTACT_SIGMA,
         }
     }
 

@@ -187,6 +187,37 @@ pub struct Baseline {
     pub u_ref_m: Num,
     pub noise_m: Num,
     pub free_rows: [u64; 2],
+    /// The optical-interference wave in U, `amplitude·sin(2π(U − u_ref)/period + phase)`, when
+    /// the free approach shows one (null otherwise).
+    pub wave: Option<BaselineWave>,
+}
+
+/// An interference wave of the free deflection (identify/baseline.rs says when one is kept).
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct BaselineWave {
+    /// The wave is `amplitude·sin(2π(U − u_ref)/period + phase)`.
+    pub u_ref_m: Num,
+    pub amplitude_m: Num,
+    pub period_m: Num,
+    pub phase_rad: Num,
+    /// The sum-of-squares drop over the periodogram's false-alarm level (α = 10⁻³): > 1.
+    pub significance: Num,
+    /// Amplitudes fitted on each half of the free part at the same period (stationarity).
+    pub halves_amplitude_m: [Num; 2],
+}
+
+impl BaselineWave {
+    /// The report of a baseline's wave (`None` without one).
+    pub fn of(b: &crate::identify::baseline::Baseline) -> Option<BaselineWave> {
+        b.wave.as_ref().map(|w| BaselineWave {
+            u_ref_m: b.u_ref_m.into(),
+            amplitude_m: w.amplitude_m.into(),
+            period_m: w.period_m.into(),
+            phase_rad: w.phase_rad.into(),
+            significance: w.significance.into(),
+            halves_amplitude_m: [w.halves_m[0].into(), w.halves_m[1].into()],
+        })
+    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
