@@ -296,6 +296,14 @@ fn stress_relaxation_recording_relaxes_beyond_kelvin_voigt() {
     // A relaxation time of seconds: the 30 s hold shows it whole.
     let tau = num(&sr, "parameters.arm1_relaxation_time_s");
     assert!(tau > 0.5 && tau < 30.0, "τ = {tau}");
+    // Who relaxed: at constant height the force fell (by ~0.11 µN; a lagging scanner would
+    // have kept pressing, the force rising).
+    assert_eq!(
+        at(&j, "hold.kind").and_then(|v| v.as_str()),
+        Some("constant height")
+    );
+    let df = num(&j, "hold.force_change_n");
+    assert!(df < -50e-9, "force change {df:e}: {summary}");
 }
 
 #[test]
@@ -305,6 +313,14 @@ fn creep_recording_relaxes_beyond_kelvin_voigt() {
     // the approach; the misfit left there is cut at least 2×.
     let (b, a) = phase_rms(&sr, "dwell");
     assert!(b / a >= 2.0, "the hold: {b} → {a}: {summary}");
+    // Who crept: under the force loop the base sank 0.11 µm further into the gel (a lagging
+    // scanner would have drawn the command back), far beyond the levels' noise (~nm).
+    assert_eq!(
+        at(&j, "hold.kind").and_then(|v| v.as_str()),
+        Some("constant force")
+    );
+    let sank = num(&j, "hold.base_towards_sample_m");
+    assert!(sank > 50e-9, "base travel {sank:e}: {summary}");
     // The retract's tether ruptures: adhesion that pulls once the contact unloads.
     let adhesion = finding(&j, "adhesion", &summary);
     assert_eq!(num(&adhesion, "parameters.on_unloading_only"), 1.0);

@@ -33,6 +33,9 @@ pub struct DiagnoseReport {
     pub held_out: HeldOutJson,
     pub selection: Selection,
     pub locate: LocateJson,
+    /// The longest hold in contact, read for who moved: the sample or the scanner (null
+    /// without a hold).
+    pub hold: Option<HoldJson>,
     pub units: Units,
     /// The per-sample series written beside the report (absent when only analysed, as the
     /// Python `diagnose` does).
@@ -41,6 +44,20 @@ pub struct DiagnoseReport {
     /// The figures written beside the report (absent when only analysed).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub figures: Option<Vec<String>>,
+}
+
+/// A hold in contact and what it shows (diagnose/locate.rs `hold_reading`).
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct HoldJson {
+    /// First and last sample (1-based, inclusive).
+    pub rows: [u64; 2],
+    /// "constant force", "constant height" or "neither".
+    pub kind: String,
+    /// How far the base moved towards the sample over the hold (m; negative: away).
+    pub base_towards_sample_m: Num,
+    /// Change of the contact force over the hold (N).
+    pub force_change_n: Num,
+    pub reading: String,
 }
 
 /// One effect left out of the nominal model.

@@ -27,7 +27,7 @@ use super::noise::{chi2_sf, normal_sf, NoiseModel};
 use super::problem::Problem;
 use super::spectrum::Spectrum;
 use crate::identify::signal::moving_average;
-use visco_core::units::{LENGTH, TIME};
+use visco_core::units::{FORCE, LENGTH, TIME};
 
 /// What the instrument is doing at a sample.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -676,4 +676,102 @@ mod tests {
             vec![true, false, true, false]
         );
     }
+}
+
+/// What a hold in contact shows about who moved: the sample or the scanner.
+///
+/// Under a **constant force** (the force loop holds D), a sample that creeps lets the base sink
+/// further into it, while a scanner that lags its command (piezo creep, continuing the
+/// approach) makes the loop draw the command back, away from the sample. Under a **constant
+/// height** (no loop), a sample that relaxes lets the force fall, while a lagging scanner keeps
+/// pressing and the force rises. The recorded U of a scanner without a height sensor is its
+/// command, so the sign of the base's travel or of the force change in the hold says which.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HoldReading {
+    /// Samples of the longest hold in contact.
+    pub rows: (usize, usize),
+    /// `"constant force"`, `"constant height"` or `"neither"` (both moved).
+    pub kind: &'static str,
+    /// How far the base moved towards the sample over the hold (m; negative: away).
+    pub base_towards_sample_m: f64,
+    /// Change of the contact force −K·ΔD over the hold (N).
+    pub force_change_n: f64,
+    /// The reading in words.
+    pub reading: String,
+}
+
+/// The longest dwell (a hold in contact) of at least 32 samples, read as [`HoldReading`] says;
+/// `None` without one. Levels are means over the hold's first and last tenth.
+pub fn hold_reading(p: &Problem, phase: &[Phase], noise_nm: f64) -> Option<HoldReading> {
+    let d = &p.data;
+    let mut best: Option<(usize, usize)> = None;
+    let mut i = 0;
+    while i < phase.len() {
+        let j = i + phase[i..].iter().take_while(|&&x| x == phase[i]).count();
+        if phase[i] == Phase::Dwell && j - i >= 32 && best.is_none_or(|(a, b)| j - i > b - a) {
+            best = Some((i, j));
+        }
+        i = j;
+    }
+    let (a, b) = best?;
+    let m = ((b - a) / 10).max(4);
+    let mean =
+        |v: &[f64], r: std::ops::Range<usize>| v[r.clone()].iter().sum::<f64>() / r.len() as f64;
+    // Approach is U decreasing (z up): towards the sample is −ΔU.
+    let du = mean(&d.u, b - m..b) - mean(&d.u, a..a + m);
+    let dd = mean(&d.d, b - m..b) - mean(&d.d, a..a + m);
+    let towards = -du;
+    let k = p.inst.k;
+    let df_nn = -k * dd;
+    // A level over m samples is known to ~σ/√m; a change to √2 of that.
+    let floor = 3.0 * noise_nm * (2.0 / m as f64).sqrt();
+    let kind = if du.abs() > 3.0 * dd.abs().max(floor) {
+        "constant force"
+    } else if dd.abs() > 3.0 * du.abs().max(floor) {
+        "constant height"
+    } else {
+        "neither"
+    };
+    let (t0, t1) = (d.t[a] * TIME, d.t[b - 1] * TIME);
+    let len = |x: f64| format!("{:.3} µm", x * LENGTH * 1e6);
+    // Internal units: K in nN/nm, D in nm, so K·ΔD is in nN.
+    let force = |x: f64| format!("{x:.3} nN");
+    let reading = match kind {
+        "constant force" if towards > 0.0 => format!(
+            "in the hold at constant force ({t0:.3}–{t1:.3} s) the base moved {} further into \
+             the sample: the sample creeps; a scanner lagging its command would have made the \
+             force loop draw the command back, away from the sample",
+            len(towards)
+        ),
+        "constant force" => format!(
+            "in the hold at constant force ({t0:.3}–{t1:.3} s) the base was drawn back {} away \
+             from the sample: the force loop following a scanner that lags its command (piezo \
+             creep) — a creeping sample would have let it sink in",
+            len(-towards)
+        ),
+        "constant height" if df_nn < 0.0 => format!(
+            "in the hold at constant height ({t0:.3}–{t1:.3} s) the force fell by {}: the sample \
+             relaxes; a scanner lagging its command would have kept pressing, the force rising",
+            force(-df_nn)
+        ),
+        "constant height" => format!(
+            "in the hold at constant height ({t0:.3}–{t1:.3} s) the force rose by {}: the scanner \
+             keeps moving after its command stopped (piezo creep) — a relaxing sample would have \
+             let the force fall",
+            force(df_nn)
+        ),
+        _ => format!(
+            "in the hold ({t0:.3}–{t1:.3} s) both the base ({} towards the sample) and the force \
+             ({} change) moved: neither a constant-force nor a constant-height hold",
+            len(towards),
+            force(df_nn)
+        ),
+    };
+    Some(HoldReading {
+        rows: (a, b),
+        kind,
+        base_towards_sample_m: towards * LENGTH,
+        force_change_n: df_nn * FORCE,
+        reading,
+    })
 }

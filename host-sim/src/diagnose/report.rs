@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use super::candidates::Env;
 use super::explain::explain;
 use super::json_report as jr;
-use super::locate::{locate, phases, spans, Located, Phase, Span};
+use super::locate::{hold_reading, locate, phases, spans, HoldReading, Located, Phase, Span};
 use super::model::{Input, Trace};
 use super::noise::HeldOut;
 use super::problem::{Problem, BLOCK};
@@ -117,6 +117,8 @@ pub struct Diagnosis {
     /// Simulated D (m) of the model before and after each finding.
     pub stages_d_m: Vec<Vec<f64>>,
     pub alpha: f64,
+    /// The longest hold in contact, read for who moved (sample or scanner).
+    pub hold: Option<HoldReading>,
 }
 
 /// Diagnoses a recording held in memory (no files).
@@ -173,6 +175,7 @@ pub fn analyse(
             (s / n as f64).sqrt() * LENGTH
         }
     };
+    let hold = hold_reading(&p, &phase, search.nominal_noise.raw_sigma);
     // Each finding against the model before it.
     let mut findings = Vec::new();
     let mut stages_d = vec![sim_nom.iter().map(|x| x * LENGTH).collect::<Vec<f64>>()];
@@ -200,7 +203,17 @@ pub fn analyse(
         findings.push(Finding {
             phases: by_phase,
             kind: t.kind,
-            explanation: explain(t.kind, vals, &env, &sp, peak),
+            explanation: {
+                let mut e = explain(t.kind, vals, &env, &sp, peak);
+                // Creep of the sample or of the scanner: the hold says which.
+                if let (EffectKind::StressRelaxation | EffectKind::PiezoCreep, Some(h)) =
+                    (t.kind, &hold)
+                {
+                    e.push_str("; ");
+                    e.push_str(&h.reading);
+                }
+                e
+            },
             parameters: cand.spec(vals, &env).parameters(),
             rms_before_m: t.rms_where_before * LENGTH,
             rms_after_m: t.rms_where_after * LENGTH,
@@ -230,6 +243,7 @@ pub fn analyse(
         located,
         phase,
         alpha: opts.alpha,
+        hold,
     })
 }
 
@@ -438,6 +452,13 @@ impl Diagnosis {
                     .collect(),
                 tests: self.located.tests.iter().map(|t| t.to_json()).collect(),
             },
+            hold: self.hold.as_ref().map(|h| jr::HoldJson {
+                rows: [h.rows.0 as u64 + 1, h.rows.1 as u64],
+                kind: h.kind.into(),
+                base_towards_sample_m: h.base_towards_sample_m.into(),
+                force_change_n: h.force_change_n.into(),
+                reading: h.reading.clone(),
+            }),
             units: jr::Units::default(),
             series_csv: None,
             figures: None,
