@@ -36,7 +36,7 @@ use crate::geometry::mean_sag;
 use crate::guard::{FaultBits, Guard, GuardParams};
 use crate::prefilter::HighPass;
 use crate::regressor::{Regressor, RegressorParams};
-use crate::schedule::{Block, BlockResult, EstimatorTask, Target, TaskParams};
+use crate::schedule::{Block, BlockData, BlockResult, EstimatorTask, Target, TaskParams};
 use crate::units;
 use core::num::{NonZeroU32, NonZeroU64};
 
@@ -568,8 +568,6 @@ pub struct Controller<T> {
     pending_watch: bool,
     /// Bumped by every restart: results of older blocks are dropped.
     epoch: u32,
-    /// A closed block for the estimator task ([`Self::take_block`]).
-    outbox: Option<Block<T>>,
     /// The host's in-line result, adopted at the next block close.
     inflight: Option<BlockResult<T>>,
     /// The estimators (per sample with blocks of 1; else the host's in-line estimator task,
@@ -801,7 +799,6 @@ impl<T: SineTable> Controller<T> {
             pending_restart: None,
             pending_watch: false,
             epoch: 0,
-            outbox: None,
             inflight: None,
             adopted: 0,
             depth: DepthController::new(u),
@@ -974,10 +971,18 @@ impl<T: SineTable> Controller<T> {
         dec > 1 && self.tick + 1 >= dec
     }
 
-    /// The block the last step closed, for the estimator task.
+    /// Closes the block accumulated so far and hands it to `send` (the firmware: a queue's
+    /// `enqueue`, so that the block is written once, straight into the queue's slot); `None`
+    /// when the block holds no sample. Call when [`Self::block_due`], after [`Self::deliver`]
+    /// and before the step, as [`Self::step_internal`] does.
     #[inline(always)]
-    pub fn take_block(&mut self) -> Option<Block<T>> {
-        self.outbox.take()
+    pub fn close_block<R>(&mut self, send: impl FnOnce(Block<T>) -> R) -> Option<R> {
+        let b = self.closing_block()?;
+        // Cleared after `send`, so that the compiler can copy the sums straight from here
+        // into the queue's slot.
+        let r = send(b);
+        self.clear_stats();
+        Some(r)
     }
 
     /// Adopt an estimator task's result (call when [`Self::block_due`], before the step); a
@@ -1032,16 +1037,17 @@ impl<T: SineTable> Controller<T> {
             if let Some(r) = self.inflight.take() {
                 self.deliver(&r);
             }
+            if let Some(b) = self.closing_block() {
+                self.clear_stats();
+                self.inflight = Some(self.task.run(&b));
+            }
         }
-        let out = self.step_loop(d_nm);
-        if let Some(b) = self.outbox.take() {
-            self.inflight = Some(self.task.run(&b));
-        }
-        out
+        self.step_loop(d_nm)
     }
 
     /// The loop's part of [`Self::step_internal`]: everything but the block estimator, whose
-    /// blocks wait in [`Self::take_block`] and whose results come back by [`Self::deliver`].
+    /// blocks the caller takes with [`Self::close_block`] (when [`Self::block_due`], before
+    /// this step) and whose results come back by [`Self::deliver`].
     #[inline(always)]
     pub fn step_loop(&mut self, d_nm: T) -> StepOut<T> {
         self.samples += 1;
@@ -1056,12 +1062,10 @@ impl<T: SineTable> Controller<T> {
         st |= input.flags;
         let d = input.d;
         let input_ok = input.ok;
-        // The block clock: a block closes at the first sample of the next.
+        // The block clock: a block closes at the first sample of the next (the caller has
+        // taken it, `close_block`, before this step).
         if self.tick + 1 >= dec {
             self.tick = 0;
-            if dec > 1 {
-                self.close_block();
-            }
         } else {
             self.tick += 1;
         }
@@ -1125,23 +1129,38 @@ impl<T: SineTable> Controller<T> {
         self.y = self.y_quantized.2;
     }
 
-    /// Hands the block accumulated so far to the estimator task (the outbox), with a pending
-    /// restart; nothing when it holds no sample.
+    /// The block accumulated so far, with a pending restart, for the estimator task; `None`
+    /// when it holds no sample. Only the target estimator's sums travel; the other's are
+    /// empty (one estimator accumulates between restarts). [`Self::clear_stats`] follows.
     #[inline(always)]
-    fn close_block(&mut self) {
+    fn closing_block(&mut self) -> Option<Block<T>> {
         if self.stats2.samples == 0 && self.stats3.samples == 0 {
-            return;
+            return None;
         }
-        self.outbox = Some(Block {
-            target: self.target,
+        let data = match self.target {
+            Target::Dive2 => BlockData::Dive2(self.stats2),
+            Target::Sve2 => BlockData::Sve2(self.stats2),
+            Target::Dive3 => BlockData::Dive3(self.stats3),
+            Target::Sve3 => BlockData::Sve3(self.stats3),
+        };
+        Some(Block {
             restart: self.pending_restart.take(),
             restart_watch: core::mem::take(&mut self.pending_watch),
-            stats2: self.stats2,
-            stats3: self.stats3,
             epoch: self.epoch,
-        });
-        self.stats2.clear();
-        self.stats3.clear();
+            data,
+        })
+    }
+
+    /// The sums start again: only what was added to (two- and three-parameter sums in one
+    /// block, the other's cleared as when both travelled, are the rare case).
+    #[inline(always)]
+    fn clear_stats(&mut self) {
+        if self.stats2.samples != 0 {
+            self.stats2.clear();
+        }
+        if self.stats3.samples != 0 {
+            self.stats3.clear();
+        }
     }
 
     /// A new tap or scan: the estimator at θ̂₀ with P₀, the divergence watch restarted.

@@ -833,13 +833,12 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32,
             // three 128-bit products the interrupt never pays).
             let core = core::hint::black_box(&mut copy);
             if LoopCore::block_due(core) {
-                core::hint::black_box(());
+                LoopCore::close_block(core, |b| {
+                    core::hint::black_box(&b);
+                });
             }
             let o = LoopCore::step(core, core::hint::black_box(d));
             core::hint::black_box((o.u_code, o.x_code, o.y_code, o.status));
-            if let Some(b) = LoopCore::take_block(core) {
-                core::hint::black_box(&b);
-            }
         }
         let t1 = systick_now();
         for &c in table {
@@ -859,13 +858,13 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32,
                 if let Some(r) = result.take() {
                     LoopCore::deliver(core, &r);
                 }
+                LoopCore::close_block(core, |b| {
+                    result = Some(core::hint::black_box(&mut task).run(&b));
+                    blocks += 1;
+                });
             }
             let o = LoopCore::step(core, core::hint::black_box(d));
             core::hint::black_box((o.u_code, o.x_code, o.y_code, o.status));
-            if let Some(b) = LoopCore::take_block(core) {
-                result = Some(core::hint::black_box(&mut task).run(&b));
-                blocks += 1;
-            }
         }
         let t4 = systick_now();
         let step = t0.wrapping_sub(t1) & 0x00FF_FFFF;
