@@ -388,6 +388,16 @@ struct Params<T> {
     dec_sve: u32,
 }
 
+/// The running mode's per-sample constants (see [`Controller::set_mode`]).
+#[derive(Clone, Copy, Debug)]
+struct ModeNow<T> {
+    /// Samples per estimator block.
+    dec: u32,
+    /// The input check's `spike` and `hold` ([`GuardParams`]).
+    spike: T,
+    hold: u32,
+}
+
 const BITS: FaultBits = FaultBits {
     invalid: status::INPUT_INVALID,
     saturated: status::INPUT_SATURATED,
@@ -542,6 +552,10 @@ pub struct Controller<T> {
     y_code: i32,
     /// The block clock: counts loop samples, 0 at the first sample of a block.
     tick: u32,
+    /// What the running mode (DIVE when stopped) sets per sample: its block length and its
+    /// input check's constants, kept here by [`Self::set_mode`] so that `step` does not pick
+    /// them by mode every sample.
+    now: ModeNow<T>,
     /// Status bits of the result adopted this sample.
     adopted: u32,
     guard: Guard<T>,
@@ -561,7 +575,6 @@ pub struct Controller<T> {
     /// The last y quantised by `set_x_same_y`: (input, code, value).
     y_quantized: (T, i32, T),
     record: Option<Record<T>>,
-    samples: u64,
     target: Target,
     /// A restart (θ̂₀) and a watch restart to send with the next block.
     pending_restart: Option<[T; 3]>,
@@ -777,6 +790,12 @@ impl<T: SineTable> Controller<T> {
             left: false,
             reapproach_from: u,
         };
+        // Stopped: DIVE's constants, as `set_mode(None)` gives.
+        let now = ModeNow {
+            dec: p.dec_dive,
+            spike: p.guard_dive.spike,
+            hold: p.guard_dive.hold,
+        };
         let task = EstimatorTask::new(
             TaskParams {
                 dive2: d.estimator.params(fs, u_span),
@@ -805,6 +824,7 @@ impl<T: SineTable> Controller<T> {
             p,
             cfg: *cfg,
             mode: None,
+            now,
             phase: Phase::Idle,
             u,
             u_code,
@@ -821,7 +841,6 @@ impl<T: SineTable> Controller<T> {
             dive,
             sve,
             record: None,
-            samples: 0,
         })
     }
 
@@ -840,11 +859,6 @@ impl<T: SineTable> Controller<T> {
         self.phase
     }
 
-    /// Samples stepped since construction.
-    pub fn samples(&self) -> u64 {
-        self.samples
-    }
-
     /// The U currently applied (m).
     pub fn u_m(&self) -> T {
         self.u * self.p.to_m
@@ -854,12 +868,12 @@ impl<T: SineTable> Controller<T> {
     pub fn command(&mut self, cmd: Command) {
         match cmd {
             Command::Stop => {
-                self.mode = None;
+                self.set_mode(None);
                 self.phase = Phase::Idle;
                 self.exc.silence();
             }
             Command::Start(Mode::Dive) => {
-                self.mode = Some(Mode::Dive);
+                self.set_mode(Some(Mode::Dive));
                 let p = &self.p.dive;
                 self.dive.tap = 0;
                 self.dive.t = 0;
@@ -875,7 +889,7 @@ impl<T: SineTable> Controller<T> {
                 self.phase = Phase::Move;
             }
             Command::Start(Mode::Sve) => {
-                self.mode = Some(Mode::Sve);
+                self.set_mode(Some(Mode::Sve));
                 self.sve.line = 0;
                 self.sve.t = 0;
                 self.sve.u_cmd = self.p.u_start;
@@ -964,11 +978,22 @@ impl<T: SineTable> Controller<T> {
     /// ([`Self::deliver`]) first. Always false with blocks of one sample.
     #[inline(always)]
     pub fn block_due(&self) -> bool {
-        let dec = match self.mode {
-            Some(Mode::Sve) => self.p.dec_sve,
-            _ => self.p.dec_dive,
-        };
+        let dec = self.now.dec;
         dec > 1 && self.tick + 1 >= dec
+    }
+
+    /// The running mode, and its per-sample constants with it.
+    fn set_mode(&mut self, mode: Option<Mode>) {
+        self.mode = mode;
+        let (gp, dec) = match mode {
+            Some(Mode::Sve) => (&self.p.guard_sve, self.p.dec_sve),
+            _ => (&self.p.guard_dive, self.p.dec_dive),
+        };
+        self.now = ModeNow {
+            dec,
+            spike: gp.spike,
+            hold: gp.hold,
+        };
     }
 
     /// Closes the block accumulated so far and hands it to `send` (the firmware: a queue's
@@ -1050,15 +1075,13 @@ impl<T: SineTable> Controller<T> {
     /// this step) and whose results come back by [`Self::deliver`].
     #[inline(always)]
     pub fn step_loop(&mut self, d_nm: T) -> StepOut<T> {
-        self.samples += 1;
         let mut st = 0u32;
         // Input: out-of-range, non-finite and spiking readings are replaced by the last good
         // tip position, and the estimator waits (see `crate::guard`).
-        let (gp, dec) = match self.mode {
-            Some(Mode::Sve) => (&self.p.guard_sve, self.p.dec_sve),
-            _ => (&self.p.guard_dive, self.p.dec_dive),
-        };
-        let input = self.guard.input(gp, d_nm, self.u, self.p.d_max, &BITS);
+        let ModeNow { dec, spike, hold } = self.now;
+        let input = self
+            .guard
+            .input_with(spike, hold, d_nm, self.u, self.p.d_max, &BITS);
         st |= input.flags;
         let d = input.d;
         let input_ok = input.ok;
@@ -1442,7 +1465,7 @@ impl<T: SineTable> Controller<T> {
         s.acc.clear();
         if s.tap >= p.taps {
             self.phase = Phase::Done;
-            self.mode = None;
+            self.set_mode(None);
             return;
         }
         let ix = s.tap % p.nx;
@@ -1592,7 +1615,7 @@ impl<T: SineTable> Controller<T> {
                 self.sve.u_cmd = u;
                 if u >= self.sve.z0 + self.p.clearance || u >= self.p.u_start {
                     self.phase = Phase::Done;
-                    self.mode = None;
+                    self.set_mode(None);
                 }
                 // Let the excitation ramp out while retracting.
                 u + self.exc.next(&self.p.sve.exc)
