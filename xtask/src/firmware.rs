@@ -1269,8 +1269,9 @@ pub fn bench_window(
     .map_err(io)?;
     let b = take_bench(&mut link)?;
     let (per, step) = insns(&b, ipt)?;
-    // The estimator interrupt's share: what the task adds to the thread-mode `step` loop over
-    // the same input, per sample; the rest of the window's per-sample count is the loop's.
+    // The estimator interrupt's share: the task's block updates over the same input, timed
+    // alone in thread mode, per sample; the rest of the window's per-sample count (the block
+    // hand-over included) is the loop's.
     let est_share = f64::from(b.estimator_ticks) * ipt / f64::from(b.steps);
     let (est_block, block_samples) = if b.estimator_blocks > 0 {
         (
