@@ -1,6 +1,6 @@
 //! What the loop interrupt does for one sample, independent of the board:
-//! command → estimator result (at a block close) → ADC → `step` → DAC → lateral outputs →
-//! block to the estimator → telemetry.
+//! command → ADC → at a block close: the estimator's result adopted and the block handed to
+//! the estimator → `step` → DAC → lateral outputs → telemetry.
 //!
 //! It never blocks, never allocates and has no panic path: a missing ADC sample is counted
 //! and the step skipped; a full telemetry queue is counted, and the main loop turns that
