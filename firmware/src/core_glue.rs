@@ -91,14 +91,15 @@ pub trait LoopCore {
     /// Applies a command (called in the loop interrupt, before the step).
     fn apply_command(&mut self, cmd: CoreCommand);
     /// One loop sample: the measured deflection as [`crate::scale::Scale::to_input`] gives it.
-    /// Blocks for the estimator task wait in [`Self::take_block`].
+    /// When [`Self::block_due`], the block is taken first ([`Self::close_block`]).
     fn step(&mut self, d: Number) -> StepOut;
-    /// The next step closes a block: deliver the estimator's result first.
+    /// The next step closes a block: deliver the estimator's result, then close the block.
     fn block_due(&self) -> bool;
     /// Adopts the estimator task's result.
     fn deliver(&mut self, r: &BlockResult);
-    /// The block the last step closed.
-    fn take_block(&mut self) -> Option<Block>;
+    /// Closes the block (when [`Self::block_due`], before the step) and hands it to `send`
+    /// (the queue's enqueue: one copy, into the queue's slot); `None` when it is empty.
+    fn close_block<R>(&mut self, send: impl FnOnce(Block) -> R) -> Option<R>;
     /// U, X, Y of the step just taken, in metres (telemetry).
     fn outputs_m(&self, out: &StepOut) -> [f32; 3];
     /// The finished tap or pixel as a telemetry frame (status bit [`RECORD_READY`]).
@@ -135,8 +136,8 @@ impl LoopCore for ActiveCore {
         visco_core::Controller::deliver(self, r)
     }
     #[inline(always)]
-    fn take_block(&mut self) -> Option<Block> {
-        visco_core::Controller::take_block(self)
+    fn close_block<R>(&mut self, send: impl FnOnce(Block) -> R) -> Option<R> {
+        visco_core::Controller::close_block(self, send)
     }
     #[inline(always)]
     fn outputs_m(&self, out: &StepOut) -> [f32; 3] {

@@ -1,6 +1,6 @@
 //! What the loop interrupt does for one sample, independent of the board:
-//! command → estimator result (at a block close) → ADC → `step` → DAC → lateral outputs →
-//! block to the estimator → telemetry.
+//! command → ADC → at a block close: the estimator's result adopted and the block handed to
+//! the estimator → `step` → DAC → lateral outputs → telemetry.
 //!
 //! It never blocks, never allocates and has no panic path: a missing ADC sample is counted
 //! and the step skipped; a full telemetry queue is counted, and the main loop turns that
@@ -123,11 +123,14 @@ pub struct EstimatorState {
 }
 
 impl EstimatorState {
-    /// The estimator interrupt's body: every waiting block, in order.
+    /// The estimator interrupt's body: every waiting block, in order, each read in its queue
+    /// slot (no copy out) and the slot freed after.
     #[inline(always)]
     pub fn run(&mut self) {
-        while let Some(b) = self.blocks.dequeue() {
-            let r = self.task.run(&b);
+        while let Some(b) = self.blocks.peek() {
+            let r = self.task.run(b);
+            // The value is not read again: this only frees the slot.
+            let _ = self.blocks.dequeue();
             // Cannot be full: at most as many results as blocks, and the queues are alike.
             let _ = self.results.enqueue(r);
         }
@@ -247,27 +250,29 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
             bump(&self.counters.starved);
             return;
         };
-        if core.block_due() && self.in_flight > 0 {
-            // The schedule: the last block's result is adopted now, before this step.
-            let mut got = false;
-            while let Some(r) = self.estimator.receive() {
-                core.deliver(&r);
-                self.in_flight -= 1;
-                got = true;
+        if core.block_due() {
+            if self.in_flight > 0 {
+                // The schedule: the last block's result is adopted now, before this step.
+                let mut got = false;
+                while let Some(r) = self.estimator.receive() {
+                    core.deliver(&r);
+                    self.in_flight -= 1;
+                    got = true;
+                }
+                if !got {
+                    bump(&self.counters.estimator_late);
+                }
             }
-            if !got {
-                bump(&self.counters.estimator_late);
+            // The block closes at the start of this sample: straight into the queue.
+            let estimator = &mut self.estimator;
+            match core.close_block(|b| estimator.send(b)) {
+                Some(true) => self.in_flight += 1,
+                Some(false) => bump(&self.counters.blocks_dropped),
+                None => {}
             }
         }
         let out = core.step(d);
         let dac_word = self.u_out.write(out.u_code);
-        if let Some(b) = self.core.take_block() {
-            if self.estimator.send(b) {
-                self.in_flight += 1;
-            } else {
-                bump(&self.counters.blocks_dropped);
-            }
-        }
         // Lateral DACs are written only when the setpoint moves (once per pixel in SVE):
         // three SPI writes per sample would not fit 1 MHz.
         let xy = (out.x_code, out.y_code);

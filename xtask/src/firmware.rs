@@ -1269,8 +1269,9 @@ pub fn bench_window(
     .map_err(io)?;
     let b = take_bench(&mut link)?;
     let (per, step) = insns(&b, ipt)?;
-    // The estimator interrupt's share: what the task adds to the thread-mode `step` loop over
-    // the same input, per sample; the rest of the window's per-sample count is the loop's.
+    // The estimator interrupt's share: the task's block updates over the same input, timed
+    // alone in thread mode, per sample; the rest of the window's per-sample count (the block
+    // hand-over included) is the loop's.
     let est_share = f64::from(b.estimator_ticks) * ipt / f64::from(b.steps);
     let (est_block, block_samples) = if b.estimator_blocks > 0 {
         (
@@ -1436,16 +1437,18 @@ pub const GOAL_SVE: f64 = 200.0;
 /// limit, SVE surface check, divergence watch): DIVE 491 → 599, SVE 553 → 686; lowered when
 /// the estimator left the loop interrupt for its own (issue 14): 598 → 520, 684 → 616; and
 /// with issue 14's cheaper per-sample arithmetic (phasor tones, read-out sums of θ̂ per block,
-/// s²Z/Λ only when w needs it): 520 → 490, 616 → 595.
-pub const CEILING_DIVE: f64 = 495.0;
+/// s²Z/Λ only when w needs it): 520 → 490, 616 → 595; and with the block hand-over without
+/// copies, the sequencers inlined and the mode's constants kept per mode (the estimator's
+/// share now timed on the task itself): 490 → 425, 595 → 537.
+pub const CEILING_DIVE: f64 = 430.0;
 /// See [`CEILING_DIVE`].
-pub const CEILING_SVE: f64 = 601.0;
-/// Issue 14: instructions per sample with the estimator interrupt's share (measured 512 / 612
-/// when last set, plus 1 %; 542 / 634 before the cheaper arithmetic), and that goal (a 1 MHz
-/// loop at half of a 400 MHz core).
-pub const CEILING_AVG_DIVE: f64 = 517.0;
+pub const CEILING_SVE: f64 = 543.0;
+/// Issue 14: instructions per sample with the estimator interrupt's share (measured 439 / 547
+/// when last set, plus 1 %; 512 / 612 before the copy-free hand-over, 542 / 634 before the
+/// cheaper arithmetic), and that goal (a 1 MHz loop at half of a 400 MHz core).
+pub const CEILING_AVG_DIVE: f64 = 444.0;
 /// See [`CEILING_AVG_DIVE`].
-pub const CEILING_AVG_SVE: f64 = 618.0;
+pub const CEILING_AVG_SVE: f64 = 553.0;
 /// See [`CEILING_AVG_DIVE`].
 pub const GOAL_AVG: f64 = 200.0;
 
@@ -1592,15 +1595,16 @@ pub const TABLE: [(Machine, Number, Estimator); 8] = [
 /// interrupt in the most expensive window of each mode (the figures measured when set, plus
 /// about 1 %): least squares. Since issue 14 the loop interrupt is the same for both
 /// estimators (it accumulates the block either way; the estimator interrupt differs).
-/// Measured 4 004 / 4 852 when last set (4 081 / 4 901 before issue 14's read-out sums per
-/// block and s²Z/Λ on demand).
-pub const CEILING_Q32_M3_DIVE: f64 = 4_045.0;
+/// Measured 3 903 / 4 776 when last set (4 004 / 4 857 before the copy-free block hand-over
+/// and the inlined sequencers; 4 081 / 4 901 before issue 14's read-out sums per block and
+/// s²Z/Λ on demand).
+pub const CEILING_Q32_M3_DIVE: f64 = 3_943.0;
 /// See [`CEILING_Q32_M3_DIVE`].
-pub const CEILING_Q32_M3_SVE: f64 = 4_901.0;
+pub const CEILING_Q32_M3_SVE: f64 = 4_824.0;
 /// See [`CEILING_Q32_M3_DIVE`]; the gradient estimator.
-pub const CEILING_Q32_M3_GRADIENT_DIVE: f64 = 4_045.0;
+pub const CEILING_Q32_M3_GRADIENT_DIVE: f64 = 3_943.0;
 /// See [`CEILING_Q32_M3_DIVE`]; the gradient estimator.
-pub const CEILING_Q32_M3_GRADIENT_SVE: f64 = 4_901.0;
+pub const CEILING_Q32_M3_GRADIENT_SVE: f64 = 4_824.0;
 
 /// Issue 8's accuracy goal: within this % of each property's maximum of the f64 reference.
 pub const FIXED_ERROR_GOAL_PCT: f64 = 0.5;

@@ -36,7 +36,7 @@ use crate::geometry::mean_sag;
 use crate::guard::{FaultBits, Guard, GuardParams};
 use crate::prefilter::HighPass;
 use crate::regressor::{Regressor, RegressorParams};
-use crate::schedule::{Block, BlockResult, EstimatorTask, Target, TaskParams};
+use crate::schedule::{Block, BlockData, BlockResult, EstimatorTask, Target, TaskParams};
 use crate::units;
 use core::num::{NonZeroU32, NonZeroU64};
 
@@ -388,6 +388,16 @@ struct Params<T> {
     dec_sve: u32,
 }
 
+/// The running mode's per-sample constants (see [`Controller::set_mode`]).
+#[derive(Clone, Copy, Debug)]
+struct ModeNow<T> {
+    /// Samples per estimator block.
+    dec: u32,
+    /// The input check's `spike` and `hold` ([`GuardParams`]).
+    spike: T,
+    hold: u32,
+}
+
 const BITS: FaultBits = FaultBits {
     invalid: status::INPUT_INVALID,
     saturated: status::INPUT_SATURATED,
@@ -542,6 +552,10 @@ pub struct Controller<T> {
     y_code: i32,
     /// The block clock: counts loop samples, 0 at the first sample of a block.
     tick: u32,
+    /// What the running mode (DIVE when stopped) sets per sample: its block length and its
+    /// input check's constants, kept here by [`Self::set_mode`] so that `step` does not pick
+    /// them by mode every sample.
+    now: ModeNow<T>,
     /// Status bits of the result adopted this sample.
     adopted: u32,
     guard: Guard<T>,
@@ -561,15 +575,12 @@ pub struct Controller<T> {
     /// The last y quantised by `set_x_same_y`: (input, code, value).
     y_quantized: (T, i32, T),
     record: Option<Record<T>>,
-    samples: u64,
     target: Target,
     /// A restart (θ̂₀) and a watch restart to send with the next block.
     pending_restart: Option<[T; 3]>,
     pending_watch: bool,
     /// Bumped by every restart: results of older blocks are dropped.
     epoch: u32,
-    /// A closed block for the estimator task ([`Self::take_block`]).
-    outbox: Option<Block<T>>,
     /// The host's in-line result, adopted at the next block close.
     inflight: Option<BlockResult<T>>,
     /// The estimators (per sample with blocks of 1; else the host's in-line estimator task,
@@ -779,6 +790,12 @@ impl<T: SineTable> Controller<T> {
             left: false,
             reapproach_from: u,
         };
+        // Stopped: DIVE's constants, as `set_mode(None)` gives.
+        let now = ModeNow {
+            dec: p.dec_dive,
+            spike: p.guard_dive.spike,
+            hold: p.guard_dive.hold,
+        };
         let task = EstimatorTask::new(
             TaskParams {
                 dive2: d.estimator.params(fs, u_span),
@@ -801,13 +818,13 @@ impl<T: SineTable> Controller<T> {
             pending_restart: None,
             pending_watch: false,
             epoch: 0,
-            outbox: None,
             inflight: None,
             adopted: 0,
             depth: DepthController::new(u),
             p,
             cfg: *cfg,
             mode: None,
+            now,
             phase: Phase::Idle,
             u,
             u_code,
@@ -824,7 +841,6 @@ impl<T: SineTable> Controller<T> {
             dive,
             sve,
             record: None,
-            samples: 0,
         })
     }
 
@@ -843,11 +859,6 @@ impl<T: SineTable> Controller<T> {
         self.phase
     }
 
-    /// Samples stepped since construction.
-    pub fn samples(&self) -> u64 {
-        self.samples
-    }
-
     /// The U currently applied (m).
     pub fn u_m(&self) -> T {
         self.u * self.p.to_m
@@ -857,12 +868,12 @@ impl<T: SineTable> Controller<T> {
     pub fn command(&mut self, cmd: Command) {
         match cmd {
             Command::Stop => {
-                self.mode = None;
+                self.set_mode(None);
                 self.phase = Phase::Idle;
                 self.exc.silence();
             }
             Command::Start(Mode::Dive) => {
-                self.mode = Some(Mode::Dive);
+                self.set_mode(Some(Mode::Dive));
                 let p = &self.p.dive;
                 self.dive.tap = 0;
                 self.dive.t = 0;
@@ -878,7 +889,7 @@ impl<T: SineTable> Controller<T> {
                 self.phase = Phase::Move;
             }
             Command::Start(Mode::Sve) => {
-                self.mode = Some(Mode::Sve);
+                self.set_mode(Some(Mode::Sve));
                 self.sve.line = 0;
                 self.sve.t = 0;
                 self.sve.u_cmd = self.p.u_start;
@@ -967,17 +978,36 @@ impl<T: SineTable> Controller<T> {
     /// ([`Self::deliver`]) first. Always false with blocks of one sample.
     #[inline(always)]
     pub fn block_due(&self) -> bool {
-        let dec = match self.mode {
-            Some(Mode::Sve) => self.p.dec_sve,
-            _ => self.p.dec_dive,
-        };
+        let dec = self.now.dec;
         dec > 1 && self.tick + 1 >= dec
     }
 
-    /// The block the last step closed, for the estimator task.
+    /// The running mode, and its per-sample constants with it.
+    fn set_mode(&mut self, mode: Option<Mode>) {
+        self.mode = mode;
+        let (gp, dec) = match mode {
+            Some(Mode::Sve) => (&self.p.guard_sve, self.p.dec_sve),
+            _ => (&self.p.guard_dive, self.p.dec_dive),
+        };
+        self.now = ModeNow {
+            dec,
+            spike: gp.spike,
+            hold: gp.hold,
+        };
+    }
+
+    /// Closes the block accumulated so far and hands it to `send` (the firmware: a queue's
+    /// `enqueue`, so that the block is written once, straight into the queue's slot); `None`
+    /// when the block holds no sample. Call when [`Self::block_due`], after [`Self::deliver`]
+    /// and before the step, as [`Self::step_internal`] does.
     #[inline(always)]
-    pub fn take_block(&mut self) -> Option<Block<T>> {
-        self.outbox.take()
+    pub fn close_block<R>(&mut self, send: impl FnOnce(Block<T>) -> R) -> Option<R> {
+        let b = self.closing_block()?;
+        // Cleared after `send`, so that the compiler can copy the sums straight from here
+        // into the queue's slot.
+        let r = send(b);
+        self.clear_stats();
+        Some(r)
     }
 
     /// Adopt an estimator task's result (call when [`Self::block_due`], before the step); a
@@ -1032,36 +1062,33 @@ impl<T: SineTable> Controller<T> {
             if let Some(r) = self.inflight.take() {
                 self.deliver(&r);
             }
+            if let Some(b) = self.closing_block() {
+                self.clear_stats();
+                self.inflight = Some(self.task.run(&b));
+            }
         }
-        let out = self.step_loop(d_nm);
-        if let Some(b) = self.outbox.take() {
-            self.inflight = Some(self.task.run(&b));
-        }
-        out
+        self.step_loop(d_nm)
     }
 
     /// The loop's part of [`Self::step_internal`]: everything but the block estimator, whose
-    /// blocks wait in [`Self::take_block`] and whose results come back by [`Self::deliver`].
+    /// blocks the caller takes with [`Self::close_block`] (when [`Self::block_due`], before
+    /// this step) and whose results come back by [`Self::deliver`].
     #[inline(always)]
     pub fn step_loop(&mut self, d_nm: T) -> StepOut<T> {
-        self.samples += 1;
         let mut st = 0u32;
         // Input: out-of-range, non-finite and spiking readings are replaced by the last good
         // tip position, and the estimator waits (see `crate::guard`).
-        let (gp, dec) = match self.mode {
-            Some(Mode::Sve) => (&self.p.guard_sve, self.p.dec_sve),
-            _ => (&self.p.guard_dive, self.p.dec_dive),
-        };
-        let input = self.guard.input(gp, d_nm, self.u, self.p.d_max, &BITS);
+        let ModeNow { dec, spike, hold } = self.now;
+        let input = self
+            .guard
+            .input_with(spike, hold, d_nm, self.u, self.p.d_max, &BITS);
         st |= input.flags;
         let d = input.d;
         let input_ok = input.ok;
-        // The block clock: a block closes at the first sample of the next.
+        // The block clock: a block closes at the first sample of the next (the caller has
+        // taken it, `close_block`, before this step).
         if self.tick + 1 >= dec {
             self.tick = 0;
-            if dec > 1 {
-                self.close_block();
-            }
         } else {
             self.tick += 1;
         }
@@ -1125,23 +1152,38 @@ impl<T: SineTable> Controller<T> {
         self.y = self.y_quantized.2;
     }
 
-    /// Hands the block accumulated so far to the estimator task (the outbox), with a pending
-    /// restart; nothing when it holds no sample.
+    /// The block accumulated so far, with a pending restart, for the estimator task; `None`
+    /// when it holds no sample. Only the target estimator's sums travel; the other's are
+    /// empty (one estimator accumulates between restarts). [`Self::clear_stats`] follows.
     #[inline(always)]
-    fn close_block(&mut self) {
+    fn closing_block(&mut self) -> Option<Block<T>> {
         if self.stats2.samples == 0 && self.stats3.samples == 0 {
-            return;
+            return None;
         }
-        self.outbox = Some(Block {
-            target: self.target,
+        let data = match self.target {
+            Target::Dive2 => BlockData::Dive2(self.stats2),
+            Target::Sve2 => BlockData::Sve2(self.stats2),
+            Target::Dive3 => BlockData::Dive3(self.stats3),
+            Target::Sve3 => BlockData::Sve3(self.stats3),
+        };
+        Some(Block {
             restart: self.pending_restart.take(),
             restart_watch: core::mem::take(&mut self.pending_watch),
-            stats2: self.stats2,
-            stats3: self.stats3,
             epoch: self.epoch,
-        });
-        self.stats2.clear();
-        self.stats3.clear();
+            data,
+        })
+    }
+
+    /// The sums start again: only what was added to (two- and three-parameter sums in one
+    /// block, the other's cleared as when both travelled, are the rare case).
+    #[inline(always)]
+    fn clear_stats(&mut self) {
+        if self.stats2.samples != 0 {
+            self.stats2.clear();
+        }
+        if self.stats3.samples != 0 {
+            self.stats3.clear();
+        }
     }
 
     /// A new tap or scan: the estimator at θ̂₀ with P₀, the divergence watch restarted.
@@ -1204,6 +1246,10 @@ impl<T: SineTable> Controller<T> {
         }
     }
 
+    // Inlined into `step_loop` (its only caller), as `sve_step`: out of line, the call saved
+    // and restored 9 core and 8 double FPU registers and passed the state through memory
+    // (~23 instructions per sample, `cargo xtask bench`).
+    #[inline(always)]
     fn dive_step(&mut self, d: T, z: T, input_ok: bool, st: &mut u32) -> T {
         self.dive.t = self.dive.t.saturating_add(1);
         let t = self.dive.t;
@@ -1419,7 +1465,7 @@ impl<T: SineTable> Controller<T> {
         s.acc.clear();
         if s.tap >= p.taps {
             self.phase = Phase::Done;
-            self.mode = None;
+            self.set_mode(None);
             return;
         }
         let ix = s.tap % p.nx;
@@ -1431,6 +1477,8 @@ impl<T: SineTable> Controller<T> {
         self.phase = Phase::Move;
     }
 
+    /// One SVE sample (inlined into `step_loop`, see `dive_step`).
+    #[inline(always)]
     fn sve_step(&mut self, d: T, z: T, input_ok: bool, st: &mut u32) -> T {
         self.sve.t = self.sve.t.saturating_add(1);
         let t = self.sve.t;
@@ -1567,7 +1615,7 @@ impl<T: SineTable> Controller<T> {
                 self.sve.u_cmd = u;
                 if u >= self.sve.z0 + self.p.clearance || u >= self.p.u_start {
                     self.phase = Phase::Done;
-                    self.mode = None;
+                    self.set_mode(None);
                 }
                 // Let the excitation ramp out while retracting.
                 u + self.exc.next(&self.p.sve.exc)

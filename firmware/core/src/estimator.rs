@@ -154,10 +154,17 @@ impl<T: Real, const N: usize> BlockStats<T, N> {
         self.samples += 1;
     }
 
-    /// Empty again.
+    /// Empty again. Every sum is stored from one opaque zero: stores of a constant zero
+    /// become a `memset` call on the M7 (36 or 60 bytes, above the 8 stores LLVM inlines),
+    /// ~90 instructions where the stores are ~10 (`cargo xtask profile`).
     #[inline(always)]
     pub fn clear(&mut self) {
-        *self = Self::default();
+        let z = core::hint::black_box(T::ZERO);
+        self.a = [[z; N]; N];
+        self.b = [z; N];
+        self.ww = z;
+        self.weight = z;
+        self.samples = 0;
     }
 }
 

@@ -117,6 +117,21 @@ impl<T: Real> Guard<T> {
         d_max: T,
         flags: &FaultBits,
     ) -> Input<T> {
+        self.input_with(p.spike, p.hold, d, u, d_max, flags)
+    }
+
+    /// [`Self::input`] with the two constants it uses, `spike` and `hold` of [`GuardParams`]
+    /// (the controller keeps the running mode's next to its per-sample state).
+    #[inline(always)]
+    pub fn input_with(
+        &mut self,
+        spike: T,
+        hold: u32,
+        d: T,
+        u: T,
+        d_max: T,
+        flags: &FaultBits,
+    ) -> Input<T> {
         let z = u - d;
         // In range (false for NaN), and not a jump of the tip.
         let in_range = d > -d_max && d < d_max;
@@ -133,7 +148,7 @@ impl<T: Real> Guard<T> {
             self.elapsed = T::ONE;
             self.z_good = z;
             self.predicted = z;
-            self.reach = p.spike;
+            self.reach = spike;
             self.known = if self.known > 0 { 2 } else { 1 };
             let ok = self.hold == 0;
             if !ok {
@@ -150,9 +165,9 @@ impl<T: Real> Guard<T> {
         } else {
             flags.spike
         };
-        self.hold = p.hold;
+        self.hold = hold;
         // The prediction coasts at the last velocity, which may itself be off by as much.
-        self.reach += p.spike + self.velocity.abs();
+        self.reach += spike + self.velocity.abs();
         self.elapsed += T::ONE;
         // Hold the tip where it was: D follows the DAC.
         Input {

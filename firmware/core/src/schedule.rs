@@ -45,21 +45,52 @@ impl Target {
     }
 }
 
+/// The information of one block for the estimator it is for: only that estimator's sums travel
+/// (36 bytes for two parameters, 60 for three in f32), so that the hand-over is one short copy.
+#[derive(Clone, Copy, Debug)]
+pub enum BlockData<T> {
+    /// DIVE, the paper's regressor.
+    Dive2(BlockStats<T, 2>),
+    /// DIVE, the offset regressor.
+    Dive3(BlockStats<T, 3>),
+    /// SVE, decoupled.
+    Sve2(BlockStats<T, 2>),
+    /// SVE, the paper's regressor.
+    Sve3(BlockStats<T, 3>),
+}
+
+impl<T> BlockData<T> {
+    /// Which estimator the sums are for.
+    #[inline(always)]
+    pub fn target(&self) -> Target {
+        match self {
+            BlockData::Dive2(_) => Target::Dive2,
+            BlockData::Dive3(_) => Target::Dive3,
+            BlockData::Sve2(_) => Target::Sve2,
+            BlockData::Sve3(_) => Target::Sve3,
+        }
+    }
+}
+
 /// One block, loop → estimator task.
 #[derive(Clone, Copy, Debug)]
 pub struct Block<T> {
-    /// Which estimator.
-    pub target: Target,
     /// Restart the estimator at this θ̂₀ with P₀ before the block (a new tap or scan).
     pub restart: Option<[T; 3]>,
     /// Restart the divergence watch before the block.
     pub restart_watch: bool,
-    /// The block's information for two parameters (used when `target.two()`).
-    pub stats2: BlockStats<T, 2>,
-    /// The block's information for three parameters.
-    pub stats3: BlockStats<T, 3>,
     /// The loop's estimation epoch when the block was closed (bumped by every restart).
     pub epoch: u32,
+    /// The block's information, and which estimator it is for.
+    pub data: BlockData<T>,
+}
+
+impl<T> Block<T> {
+    /// Which estimator the block is for.
+    #[inline(always)]
+    pub fn target(&self) -> Target {
+        self.data.target()
+    }
 }
 
 /// One result, estimator task → loop.
@@ -194,23 +225,24 @@ impl<T: Real> EstimatorTask<T> {
 
     /// One block: restarts first, then the block update and the divergence watch.
     pub fn run(&mut self, b: &Block<T>) -> BlockResult<T> {
+        let target = b.target();
         if let Some(th) = b.restart {
-            self.restart(b.target, th);
+            self.restart(target, th);
         }
         if b.restart_watch {
             self.watch.restart();
         }
-        let bi = match b.target {
-            Target::Dive2 => self.est2.update_block(&self.p.dive2, &b.stats2),
-            Target::Sve2 => self.est2.update_block(&self.p.sve2, &b.stats2),
-            Target::Dive3 => self.est3.update_block(&self.p.dive3, &b.stats3),
-            Target::Sve3 => self.est3.update_block(&self.p.sve3, &b.stats3),
+        let bi = match &b.data {
+            BlockData::Dive2(s) => self.est2.update_block(&self.p.dive2, s),
+            BlockData::Sve2(s) => self.est2.update_block(&self.p.sve2, s),
+            BlockData::Dive3(s) => self.est3.update_block(&self.p.dive3, s),
+            BlockData::Sve3(s) => self.est3.update_block(&self.p.sve3, s),
         };
         let mut flags = est_flags(bi.info);
-        flags |= self.watch(b.target, bi.info, bi.e_ms, bi.w_ms, true);
+        flags |= self.watch(target, bi.info, bi.e_ms, bi.w_ms, true);
         BlockResult {
-            target: b.target,
-            theta: self.theta(b.target),
+            target,
+            theta: self.theta(target),
             flags,
             epoch: b.epoch,
         }

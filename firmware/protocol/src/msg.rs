@@ -461,9 +461,9 @@ pub struct BenchFrame {
     pub step_ticks: u32,
     /// The same loop without the `step` call (its own cost, to subtract).
     pub loop_ticks: u32,
-    /// With `time_step`: SysTick ticks the estimator task's block updates add to the `step`
-    /// loop (the same loop with every closed block run through a copy of the task, minus
-    /// `step_ticks`; 0 otherwise).
+    /// With `time_step`: SysTick ticks of the estimator task's block updates over the same
+    /// input (every closed block run through a copy of the task, each timed alone; 0
+    /// otherwise).
     pub estimator_ticks: u32,
     /// Blocks the estimator task ran in that loop.
     pub estimator_blocks: u32,
