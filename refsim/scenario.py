@@ -86,6 +86,26 @@ def free_gain(lever: Cantilever, f: float) -> float:
     return abs((lever.k + 1j * w * lever.c) / (lever.k - lever.m * w * w + 1j * w * lever.c))
 
 
+@dataclass
+class Interference:
+    """Laser light spilling past the lever onto the sample interferes with the lever's own
+    reflection: the detector reads D + amplitude*sin(2*pi*height/period + phase), with height
+    the lever end's height above the sample, U - D (metres)."""
+    amplitude_m: float
+    period_m: float
+    phase_rad: float
+
+    def describe(self) -> dict:
+        return {"amplitude_m": self.amplitude_m, "period_m": self.period_m,
+                "phase_rad": self.phase_rad, "in": "lever height U - D"}
+
+
+def draw_interference(rng: np.random.Generator, noise_m: float) -> Interference:
+    """An AFM head's laser of 0.5-0.9 um: period lambda/2; amplitude 2-10x the noise."""
+    return Interference(math.exp(rng.uniform(math.log(2.0), math.log(10.0))) * noise_m,
+                        rng.uniform(0.25e-6, 0.45e-6), rng.uniform(0.0, 2 * math.pi))
+
+
 def draw_setup(rng: np.random.Generator, tap: bool, discrete_only: bool = False) -> Setup:
     lu = lambda a, b: math.exp(rng.uniform(math.log(a), math.log(b)))  # noqa: E731
     lever = Cantilever(lu(0.05, 0.5), lu(10e3, 70e3), lu(20.0, 200.0))
@@ -243,13 +263,19 @@ AMPLITUDE_MAX = {"nonlinear-stiffness": 2.0, "piezo-creep": 0.5, "plastic-deform
 
 
 def scenario(kind: str | None, seed: int, progress=lambda s: None,
-             discrete_only: bool = False) -> dict:
+             discrete_only: bool = False, interference: bool = False) -> dict:
     """One recording: returns dict with setup, effect, ratio, the recording's columns and the
-    noise-free truth."""
+    noise-free truth. `interference`: a force curve (never a tap) whose free approach starts
+    1.5-3 um from the sample and whose detector carries an interference wave (the truth's D
+    is without it; the wave is a nuisance of the instrument, not an effect)."""
     salt = 0 if kind is None else 1 + EFFECTS.index(kind)
-    rng = np.random.default_rng([seed, salt, 0x5EF])
-    tap = True if kind == "second-eigenmode" else bool(rng.uniform() < 0.5)
+    rng = np.random.default_rng([seed, salt, 0x5EF if not interference else 0x1F7])
+    tap = not interference and (True if kind == "second-eigenmode" else bool(rng.uniform() < 0.5))
     setup = draw_setup(rng, tap, discrete_only)
+    wave = None
+    if interference:
+        setup.standoff_m = rng.uniform(1.5e-6, 3e-6)
+        wave = draw_interference(rng, setup.noise_m)
     target = math.exp(rng.uniform(math.log(3.0), math.log(10.0)))
     ts, um, clean = run(setup, None)
     noise_rng = np.random.default_rng([seed, salt, 0xA0C])
@@ -290,9 +316,14 @@ def scenario(kind: str | None, seed: int, progress=lambda s: None,
         effect.amplitude = best[1]
         truth = best[2]
         ratio = best[3] / noise_rms
-    d_rec = adc(truth)
+    detected = truth
+    if wave is not None:
+        detected = truth + wave.amplitude_m * np.sin(
+            2 * math.pi * (um - truth) / wave.period_m + wave.phase_rad)
+    d_rec = adc(detected)
     return {
         "setup": setup, "effect": effect, "target_ratio": target, "ratio": ratio,
+        "interference": wave,
         "noise_rms_m": noise_rms, "t_s": ts, "u_m": um, "d_m": d_rec, "truth_d_m": truth,
         "clean_d_m": clean,
     }
