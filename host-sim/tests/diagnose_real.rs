@@ -360,8 +360,10 @@ fn an_interference_wave_is_part_of_the_baseline() {
     let range = rec.d_m.iter().copied().fold(f64::NEG_INFINITY, f64::max)
         - rec.d_m.iter().copied().fold(f64::INFINITY, f64::min);
     let tau = std::f64::consts::TAU;
+    // At the lever's height U − D (the deflection from the free level: ≤ 0.2 nm here).
+    let free = rec.d_m[0];
     for (d, &u) in wavy.d_m.iter_mut().zip(&rec.u_m) {
-        *d += 0.15 * range * (tau * u / p + 1.0).sin();
+        *d += 0.15 * range * (tau * (u - (*d - free)) / p + 1.0).sin();
     }
     let (j1, s1) = diagnose_recording("AFM Workshop with a stronger wave", &wavy);
     assert_eq!(effects(&j1), effects(&j0), "{s0}\n{s1}");

@@ -283,7 +283,7 @@ fn check_plausible(name: &str, rec: &Recording, f: &ForceCurveFit, j: &Json) {
         "{name}: contact after the threshold"
     );
     // Z at contact is between the tip positions of the approach.
-    let z = |i: usize| rec.u_m[i] - (rec.d_m[i] - f.baseline.at(rec.u_m[i]));
+    let z = |i: usize| rec.u_m[i] - (rec.d_m[i] - f.baseline.under(rec.u_m[i], rec.d_m[i]));
     assert!(f.contact_height_m < z(f.approach.start) && f.contact_height_m > z(f.approach.end - 1));
     // The element bed pushes back and dissipates (or not).
     assert!(
@@ -537,12 +537,17 @@ fn ntmdt_with_the_missing_calibration_supplied() {
     }
 }
 
-/// Identifies `rec` with `wave(u)` added to its deflection (an optical interference of the
-/// laser that spills onto the sample).
-fn identify_with_wave(rec: &Recording, wave: impl Fn(f64) -> f64) -> ForceCurveFit {
+/// Identifies `rec` with `wave(x)` added to its deflection at the lever's height
+/// `x = U − (D − line(U))` (an optical interference of the laser that spills onto the sample;
+/// `line`: the recording's own free deflection).
+fn identify_with_wave(
+    rec: &Recording,
+    line: impl Fn(f64) -> f64,
+    wave: impl Fn(f64) -> f64,
+) -> ForceCurveFit {
     let mut rec = rec.clone();
     for (d, &u) in rec.d_m.iter_mut().zip(&rec.u_m) {
-        *d += wave(u);
+        *d += wave(u - (*d - line(u)));
     }
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("wavy.csv");
@@ -555,8 +560,8 @@ fn identify_with_wave(rec: &Recording, wave: impl Fn(f64) -> f64) -> ForceCurveF
     *fit
 }
 
-/// A wavy interference baseline is modelled, not refused, and the contact's figures do not
-/// move: on AFM Workshop (whose free approach carries its own wave, 8.6 pm at 0.32 µm, which
+/// A wavy interference baseline (added at the lever's height, as the physics has it) is
+/// modelled, not refused, and the contact's figures do not move: on AFM Workshop (whose free approach carries its own wave, 8.6 pm at 0.32 µm, which
 /// the stronger one adds to at the same period: the same laser) and on JPK spot3 (no wave of
 /// its own; 0.4 µm, an 830 nm laser's λ/2). The added wave is 15 % of the curve's deflection
 /// range: with the line-only baseline this moved AFM Workshop's contact by 124 rows and its
@@ -578,7 +583,8 @@ fn an_interference_wave_is_modelled_and_moves_nothing() {
         };
         let a = 0.15 * f0.deflection_range_m;
         let tau = std::f64::consts::TAU;
-        let f = identify_with_wave(&rec, |u| a * (tau * u / period + 1.0).sin());
+        let line = |u: f64| f0.baseline.line_at(u);
+        let f = identify_with_wave(&rec, line, |x| a * (tau * x / period + 1.0).sin());
         let w = f
             .baseline
             .wave

@@ -14,7 +14,8 @@
 //!    pytest suite against the `visco` command.
 //! 7. The independent reference simulator (refsim/, Python): a venv in target/refsim-venv
 //!    with numpy, scipy and pytest from PyPI, its closed-form tests, then one recording per
-//!    class (discrete beds only, for time) generated and diagnosed by visco (`tests/concealed_refsim.rs`, figures printed).
+//!    class (discrete beds only, for time) generated and diagnosed by visco (`tests/concealed_refsim.rs`, figures printed),
+//!    and two force curves with an interference wave (`--interference`: clean, adhesion).
 
 use crate::firmware::{self, Result};
 use std::process::Command;
@@ -230,6 +231,31 @@ pub fn refsim_tests() -> Result<()> {
         ],
         &[],
     )?;
+    // Force curves with an interference wave on the detector: one clean, one with an effect.
+    let wave_dir = root.join("target/refsim-ci-wave");
+    if wave_dir.exists() {
+        std::fs::remove_dir_all(&wave_dir).map_err(|e| format!("{}: {e}", wave_dir.display()))?;
+    }
+    let wave_s = wave_dir.to_string_lossy().into_owned();
+    run_in_root(
+        &py,
+        &[
+            "-m",
+            "refsim",
+            "generate",
+            "--out",
+            &wave_s,
+            "--seeds",
+            "1",
+            "--jobs",
+            "2",
+            "--discrete-only",
+            "--interference",
+            "--classes",
+            "clean,adhesion",
+        ],
+        &[],
+    )?;
     cargo_env(
         &[
             "test",
@@ -241,7 +267,10 @@ pub fn refsim_tests() -> Result<()> {
             "--ignored",
             "--nocapture",
         ],
-        &[("VISCO_REFSIM_DIR", &dir_s)],
+        &[
+            ("VISCO_REFSIM_DIR", &dir_s),
+            ("VISCO_REFSIM_WAVE_DIR", &wave_s),
+        ],
     )
 }
 

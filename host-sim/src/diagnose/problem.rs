@@ -82,7 +82,12 @@ impl Problem {
         // contact: it is found on the free approach (as identify finds it) and taken out.
         let baseline_wave = interference_wave(rec);
         let wave_nm: Vec<f64> = baseline_wave.as_ref().map_or(Vec::new(), |b| {
-            rec.u_m.iter().map(|&x| b.wave_at(x) / LENGTH).collect()
+            // At the lever's height, from the recorded deflection (identify/baseline.rs).
+            rec.u_m
+                .iter()
+                .zip(&rec.d_m)
+                .map(|(&x, &y)| (b.under(x, y) - b.line_at(x)) / LENGTH)
+                .collect()
         });
         for (x, w) in d.iter_mut().zip(&wave_nm) {
             *x -= w;

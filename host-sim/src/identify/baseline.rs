@@ -6,11 +6,12 @@
 //! lever's own reflection on the photodiode. The path difference changes by twice the lever's
 //! height, so the free deflection carries a sinusoid in the lever's height of period λ/2
 //! (0.3–0.4 µm for the 0.6–0.85 µm lasers of AFM heads, longer when the beam is inclined).
-//! It is modelled as `a·cos(2π(U − U_ref)/P) + b·sin(2π(U − U_ref)/P)`, a sinusoid in U over the
-//! whole curve: the lever's height is `U − D`, which differs from U by the deflection, so in
-//! contact the phase is off by `2π·ΔD/P` (a 30 nm deflection under a 320 nm period: 0.6 rad on
-//! the wave's amplitude, which is itself a fraction of the contact's force in any curve one can
-//! identify).
+//! It is modelled as a sinusoid in the lever's height `U − D` (D the deflection from the free
+//! level): fitted as `a·cos(2π(U − U_ref)/P) + b·sin(2π(U − U_ref)/P)` on the free part, where D
+//! stays at its free level, and evaluated at `U − D` elsewhere. In contact the two differ by the
+//! deflection: a 30 nm deflection under a 320 nm period moves the wave's phase by 0.6 rad, which
+//! on refsim's curves (it puts the wave in U − D) left 0.15 nm of misfit when the wave was
+//! evaluated at U.
 //!
 //! A wave is kept only when the free part shows it beyond doubt, so that nothing else is
 //! absorbed by it:
@@ -68,16 +69,42 @@ pub struct Baseline {
 }
 
 impl Baseline {
-    /// D₀ at base position `u`.
-    pub fn at(&self, u: f64) -> f64 {
-        self.offset_m + self.tilt * (u - self.u_ref_m) + self.wave_at(u)
+    /// Offset and tilt at base position `u` (no wave).
+    pub fn line_at(&self, u: f64) -> f64 {
+        self.offset_m + self.tilt * (u - self.u_ref_m)
     }
 
-    /// The wave's part of D₀ at `u` (0 without one).
-    pub fn wave_at(&self, u: f64) -> f64 {
+    /// D₀ at base position `u` for a lever deflected `deflection` from its free level: the
+    /// line in U, and the wave at the lever's height `U − deflection`.
+    pub fn at(&self, u: f64, deflection: f64) -> f64 {
+        self.line_at(u) + self.wave_at(u - deflection)
+    }
+
+    /// D₀ under a recorded deflection `d` at base position `u`. The lever's deflection is
+    /// `d − D₀`, and D₀ depends on it through the wave, so this solves
+    /// `w = wave(U − (d − line − w))` by fixed-point iteration: a contraction by 2π·A/P per step
+    /// (0.25 for a 16 nm wave of 400 nm period), converged to 10⁻¹⁵ m in a few steps.
+    pub fn under(&self, u: f64, d: f64) -> f64 {
+        let line = self.line_at(u);
+        let mut w = 0.0;
+        if self.wave.is_some() {
+            for _ in 0..50 {
+                let next = self.wave_at(u - (d - line - w));
+                let done = (next - w).abs() <= 1e-15;
+                w = next;
+                if done {
+                    break;
+                }
+            }
+        }
+        line + w
+    }
+
+    /// The wave's part of D₀ at lever height `x` (0 without one).
+    pub fn wave_at(&self, x: f64) -> f64 {
         self.wave.as_ref().map_or(0.0, |w| {
             w.amplitude_m
-                * (std::f64::consts::TAU * (u - self.u_ref_m) / w.period_m + w.phase_rad).sin()
+                * (std::f64::consts::TAU * (x - self.u_ref_m) / w.period_m + w.phase_rad).sin()
         })
     }
 
@@ -369,7 +396,11 @@ mod tests {
         // The model reproduces the wave where it was not fitted (beyond the free part).
         let x = u[899] - 150e-9;
         let want = 2e-9 + 1e-3 * x + a * (std::f64::consts::TAU * x / p + 0.3).sin();
-        assert!((b.at(x) - want).abs() < 0.1 * a, "{} vs {want}", b.at(x));
+        assert!(
+            (b.at(x, 0.0) - want).abs() < 0.1 * a,
+            "{} vs {want}",
+            b.at(x, 0.0)
+        );
     }
 
     #[test]

@@ -183,9 +183,11 @@ pub fn identify(rec: &Recording, path: &Path, opts: &Options) -> Result<ForceCur
 
     // Force and tip position against the baseline.
     let force: Vec<f64> = (0..n)
-        .map(|i| -k_cant * (d[i] - baseline.at(u[i])))
+        .map(|i| -k_cant * (d[i] - baseline.under(u[i], d[i])))
         .collect();
-    let z: Vec<f64> = (0..n).map(|i| u[i] - (d[i] - baseline.at(u[i]))).collect();
+    let z: Vec<f64> = (0..n)
+        .map(|i| u[i] - (d[i] - baseline.under(u[i], d[i])))
+        .collect();
     let z_s = moving_average(&z, 2);
     let dt_max = t.windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max);
     let lambda = (4.0 * dt_max).max(0.01);
@@ -267,10 +269,10 @@ pub fn identify(rec: &Recording, path: &Path, opts: &Options) -> Result<ForceCur
     let p = opts.element_pitch_m;
 
     // The fit: the quasi-static law driven by the recorded U.
-    let sim = simulate(t, u, &baseline, k_cant, h, k_a, c_a, r);
+    let (sim, sim_deflection) = simulate(t, u, &baseline, k_cant, h, k_a, c_a, r);
     let resid: Vec<f64> = (0..n).map(|i| d[i] - sim[i]).collect();
     let rms_all = super::signal::rms(resid.iter().copied());
-    let in_contact = |i: usize| depth[i] > 0.0 || sim[i] - baseline.at(u[i]) < -1e-15;
+    let in_contact = |i: usize| depth[i] > 0.0 || sim_deflection[i] < -1e-15;
     let rms_contact = super::signal::rms((0..n).filter(|&i| in_contact(i)).map(|i| resid[i]));
     let segments = segment_misfits(rec, &resid);
     let (dmin, dmax) = d
@@ -351,6 +353,15 @@ pub fn free_part(rec: &Recording, path: &Path, contact_sigma: f64) -> Result<Fre
     let u = &rec.u_m;
     let d = &rec.d_m;
     let approach = find_approach(rec, path)?;
+    // Without segments the approach counts from the first row, which may be the base at rest:
+    // the free part then starts once the base is under way, since at rest (or while it speeds
+    // up) the lever does not carry the drag offset C·v/K it carries while moving, a step in D at
+    // one U that no function of U describes. A vendor's `extend` segment is the ramp itself.
+    let free_start = if has_segments(rec) {
+        approach.start
+    } else {
+        under_way(rec, &approach)
+    };
 
     // Baseline and threshold, iterated: the free part ends before the contact found.
     let len = approach.len();
@@ -359,14 +370,14 @@ pub fn free_part(rec: &Recording, path: &Path, contact_sigma: f64) -> Result<Fre
     let mut crossing;
     let mut iterations = 0;
     loop {
-        baseline = fit_baseline(u, d, approach.start..free_end);
+        baseline = fit_baseline(u, d, free_start..free_end.max(free_start));
         crossing = threshold_crossing(u, d, &baseline, &approach, contact_sigma)
             .map_err(|e| IdentifyError::new(path, e))?;
         let (i_cross, i_zero) = crossing;
         let guard = (2 * (i_cross - i_zero)).max(len / 20).max(10);
         let new_end = i_zero.saturating_sub(guard).max(approach.start);
         iterations += 1;
-        if new_end < approach.start + 5 {
+        if new_end < free_start + 5 {
             return Err(IdentifyError::new(
                 path,
                 format!(
@@ -380,7 +391,7 @@ pub fn free_part(rec: &Recording, path: &Path, contact_sigma: f64) -> Result<Fre
         }
         if new_end.abs_diff(free_end) <= len / 200 || iterations >= 6 {
             free_end = new_end;
-            baseline = fit_baseline(u, d, approach.start..free_end);
+            baseline = fit_baseline(u, d, free_start..free_end.max(free_start));
             crossing = threshold_crossing(u, d, &baseline, &approach, contact_sigma)
                 .map_err(|e| IdentifyError::new(path, e))?;
             break;
@@ -392,6 +403,41 @@ pub fn free_part(rec: &Recording, path: &Path, contact_sigma: f64) -> Result<Fre
         baseline,
         crossing,
     })
+}
+
+/// The first row of the approach at which the base moves at 95 % of its median speed over the
+/// approach's first half: rows before it are the rest and the start of the ramp. Speeds are
+/// taken over windows of 2 % of the approach (at least 5 rows), so that a height sensor's noise
+/// or a DAC's staircase does not read as a change of speed.
+fn under_way(rec: &Recording, approach: &Range<usize>) -> usize {
+    let (t, u) = (&rec.t_s, &rec.u_m);
+    let w = (approach.len() / 50).max(5);
+    let end = approach.start + approach.len() / 2;
+    if end < approach.start + 2 * w {
+        return approach.start;
+    }
+    let speed = |i: usize| {
+        let dt = t[i + w] - t[i];
+        if dt > 0.0 {
+            (u[i + w] - u[i]).abs() / dt
+        } else {
+            0.0
+        }
+    };
+    let mut all: Vec<f64> = (approach.start..end - w).map(speed).collect();
+    all.sort_by(f64::total_cmp);
+    let median = all[all.len() / 2];
+    if !(median > 0.0) {
+        return approach.start;
+    }
+    (approach.start..end - w)
+        .find(|&i| speed(i) >= 0.95 * median)
+        .unwrap_or(approach.start)
+}
+
+/// Whether the recording names its segments (`segment` column and `# segments:` line).
+fn has_segments(rec: &Recording) -> bool {
+    matches!(segment_kinds(rec), Some((_, kinds)) if !kinds.is_empty())
 }
 
 /// The `segment` column and the `# segments:` line's (number, kind) pairs.
@@ -480,7 +526,7 @@ fn threshold_crossing(
     n_sigma: f64,
 ) -> std::result::Result<(usize, usize), String> {
     let thr = -n_sigma * b.noise_m.max(1e-13);
-    let dt = |i: usize| d[i] - b.at(u[i]);
+    let dt = |i: usize| d[i] - b.under(u[i], d[i]);
     let last = approach.end - 1;
     if dt(last) >= thr {
         return Err(format!(
@@ -544,7 +590,8 @@ fn regress(
     super::signal::two_column_nonneg(s11, s12, s22, s1y, s2y, syy)
 }
 
-/// The quasi-static law driven by U: D per row (m).
+/// The quasi-static law driven by U: D per row (m), and the lever's deflection from its free
+/// level (m).
 #[allow(clippy::too_many_arguments)]
 fn simulate(
     t: &[f64],
@@ -555,9 +602,10 @@ fn simulate(
     k_a: f64,
     c_a: f64,
     r: f64,
-) -> Vec<f64> {
+) -> (Vec<f64>, Vec<f64>) {
     let n = t.len();
     let mut out = Vec::with_capacity(n);
+    let mut deflection = Vec::with_capacity(n);
     let mut delta = 0.0f64; // apex depth, ≥ 0 (0 when free)
     for i in 0..n {
         let dt = if i == 0 {
@@ -604,9 +652,10 @@ fn simulate(
         };
         delta = new;
         let d_true = if new > 0.0 { new - h + u[i] } else { 0.0 };
-        out.push(d_true + b.at(u[i]));
+        out.push(d_true + b.at(u[i], d_true));
+        deflection.push(d_true);
     }
-    out
+    (out, deflection)
 }
 
 /// RMS misfit per segment: (number, kind, rows, rms).
