@@ -1088,4 +1088,88 @@ mod tests {
             k * (z - u)
         );
     }
+
+    /// The propagator cache returns `Propagator::new` bit for bit, through hits, misses and
+    /// evictions (more keys than entries, revisited out of order), and τ = 0 is never a hit.
+    #[test]
+    fn the_propagator_cache_returns_the_uncached_propagator() {
+        let m = 11.8;
+        let mut cache = PropagatorCache::default();
+        let keys: Vec<(f64, f64, f64)> = (0..PROPAGATOR_CACHE + 5)
+            .map(|i| {
+                (
+                    0.01 + 0.3 * i as f64,
+                    0.18 + 0.05 * i as f64,
+                    2.0 - 0.1 * i as f64,
+                )
+            })
+            .collect();
+        let order = [
+            0usize, 1, 0, 2, 3, 4, 5, 6, 7, 8, 0, 9, 1, 12, 11, 10, 0, 3, 3, 12,
+        ];
+        for &i in &order {
+            let (c, k, tau) = keys[i];
+            assert_eq!(
+                cache.get(m, c, k, tau),
+                Propagator::new(m, c, k, tau),
+                "key {i}"
+            );
+        }
+        let zero = cache.get(m, 0.5, 0.2, 0.0);
+        assert_eq!(zero, Propagator::new(m, 0.5, 0.2, 0.0));
+        // An entry never filled is all zeros with τ = 0: a zero key must not read it.
+        let mut fresh = PropagatorCache::default();
+        assert_eq!(
+            fresh.get(m, 0.0, 0.0, 0.0),
+            Propagator::new(m, 0.0, 0.0, 0.0)
+        );
+    }
+
+    /// The lattice's event search is skipped only where it could find nothing: wherever the
+    /// bound's two edges have the same engaged count, so have the eight Hermite points the
+    /// search looks at, over pieces of every kind (free, pressed, crossing, turning).
+    #[test]
+    fn the_lattice_search_is_skipped_only_where_the_hermite_points_agree() {
+        let r = 300.0;
+        let geo = BedGeometry::new(
+            Bed::Lattice {
+                pitch_nm: 100.0,
+                offset: [0.25, 0.0],
+            },
+            r,
+        );
+        let h = 0.0;
+        let mut rng = crate::plant::rng::Xoshiro256pp::new(7);
+        let (mut skipped, mut searched) = (0, 0);
+        for _ in 0..20_000 {
+            // Depths from −50 to 250 nm, velocities up to 40 nm per sample, τ up to 2 µs.
+            let z0 = -250.0 + 300.0 * rng.next_open01();
+            let z1 = z0 + 40.0 * (2.0 * rng.next_open01() - 1.0);
+            let tau = 0.05 + 2.0 * rng.next_open01();
+            let v0 = 20.0 * (2.0 * rng.next_open01() - 1.0) / tau;
+            let v1 = 20.0 * (2.0 * rng.next_open01() - 1.0) / tau;
+            let n0 = geo.engaged(h - z0);
+            let swing = 4.0 / 27.0 * tau * (v0.abs() + v1.abs());
+            let margin = 1e-12 * (z0.abs() + z1.abs() + swing) + 1e-300;
+            let (z_lo, z_hi) = (z0.min(z1) - swing - margin, z0.max(z1) + swing + margin);
+            if geo.engaged(h - z_hi) == n0 && geo.engaged(h - z_lo) == n0 {
+                skipped += 1;
+                for j in 1..=8 {
+                    let zq = hermite(z0, v0, z1, v1, tau, j as f64 / 8.0);
+                    assert_eq!(
+                        geo.engaged(h - zq),
+                        n0,
+                        "{z0} {v0} {z1} {v1} {tau} at {j}/8"
+                    );
+                }
+            } else {
+                searched += 1;
+            }
+        }
+        // Both branches are exercised.
+        assert!(
+            skipped > 1000 && searched > 1000,
+            "{skipped} skipped, {searched} searched"
+        );
+    }
 }

@@ -18,8 +18,7 @@
 //! Levenberg–Marquardt fit of the full model starts there.
 
 use super::model::{cap_volume, contact_area, Contact, Data, Instrument, Nominal};
-use crate::identify::signal::{median, moving_average, robust_sigma, two_column_nonneg};
-use crate::numerics::minimize;
+use crate::identify::signal::{median, minimize, moving_average, robust_sigma, two_column_nonneg};
 use crate::recording::Recording;
 use visco_core::units::{DAMPING, LENGTH, MASS, TIME};
 

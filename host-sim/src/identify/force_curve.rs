@@ -48,9 +48,8 @@ use std::path::Path;
 
 use super::error::{IdentifyError, Result};
 use super::report as rep;
-use super::signal::{cap_volume, contact_area, moving_average, robust_sigma, FohLowPass};
+use super::signal::{cap_volume, contact_area, minimize, moving_average, robust_sigma, FohLowPass};
 use super::Options;
-use crate::numerics::minimize;
 use crate::recording::{Metadata, Recording};
 
 /// The free deflection `D₀(U) = offset + tilt·(U − u_ref)`.

@@ -67,6 +67,9 @@ pub fn moving_average(v: &[f64], half: usize) -> Vec<f64> {
         .collect()
 }
 
+/// The grid-and-golden-section minimiser, which lives with the other shared numerics.
+pub use crate::numerics::minimize;
+
 /// Least squares of `y = a·x₁ + b·x₂` with `b ≥ 0`, from the normal-equation sums
 /// (Σx₁², Σx₁x₂, Σx₂², Σx₁y, Σx₂y, Σy²), solved with both columns scaled to unit norm and
 /// projected onto `b = 0` when it would be negative: (a, b, residual sum of squares).
