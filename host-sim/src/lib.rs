@@ -5,6 +5,7 @@
 pub mod diagnose;
 pub mod experiment;
 pub mod identify;
+pub mod numerics;
 pub mod output;
 pub mod plant;
 pub mod recording;

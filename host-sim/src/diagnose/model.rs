@@ -224,6 +224,26 @@ impl BedGeometry {
             usize::from(d > 0.0)
         }
     }
+    /// (V(δ), A(δ), elements engaged) with one search of the lattice: [`Self::volume`],
+    /// [`Self::area`] and [`Self::engaged`] bit for bit, for the per-sample force (three
+    /// binary searches per call were a tenth of a simulation).
+    #[inline]
+    pub fn at(&self, d: f64) -> (f64, f64, usize) {
+        if self.lattice {
+            let n = self.sags.partition_point(|&s| s < d);
+            (
+                self.cell * (n as f64 * d - self.prefix[n]),
+                self.cell * n as f64,
+                n,
+            )
+        } else {
+            (
+                cap_volume(self.r, d),
+                contact_area(self.r, d),
+                usize::from(d > 0.0),
+            )
+        }
+    }
     /// V(δ) (nm³).
     #[inline]
     pub fn volume(&self, d: f64) -> f64 {
@@ -421,6 +441,9 @@ pub fn simulate(
     let mut u_eff_prev = data.u[0];
     let mut u_eff_prev2 = data.u[0];
     let dt_first = if n > 1 { data.t[1] - data.t[0] } else { 1.0 };
+    // Without effects (every simulation of the nominal fit) nothing reads the contexts
+    // unless the states are traced: they are not built (two force evaluations per sample).
+    let bare = effects.is_empty();
     for i in 0..n {
         let ct = contact_of(i);
         let dt = if i == 0 {
@@ -430,16 +453,20 @@ pub fn simulate(
         };
         let u_cmd = data.u[i];
         if i > 0 {
-            let ctx0 = context(ct, geo, data.t[i - 1], dt, z, v, u_cmd);
+            let ctx0 = (!bare).then(|| context(ct, geo, data.t[i - 1], dt, z, v, u_cmd));
             let mut u_eff = u_cmd;
-            for e in effects.iter() {
-                u_eff = e.piezo_z_nm(&ctx0, u_eff);
+            let mut f_eff = 0.0;
+            if let Some(ctx0) = &ctx0 {
+                for e in effects.iter() {
+                    u_eff = e.piezo_z_nm(ctx0, u_eff);
+                }
             }
             match inst.m {
                 Some(m) => {
-                    let mut f_eff = 0.0;
-                    for e in effects.iter() {
-                        f_eff += e.tip_force_nn(&ctx0);
+                    if let Some(ctx0) = &ctx0 {
+                        for e in effects.iter() {
+                            f_eff += e.tip_force_nn(ctx0);
+                        }
                     }
                     let sys = Dyn {
                         m,
@@ -462,7 +489,16 @@ pub fn simulate(
                         u_eff
                     };
                     (z, v) = quasi_static_step(
-                        inst, geo, ct, effects, &ctx0, u_acting, z, dt, k_lin, c_lin,
+                        inst,
+                        geo,
+                        ct,
+                        effects,
+                        ctx0.as_ref(),
+                        u_acting,
+                        z,
+                        dt,
+                        k_lin,
+                        c_lin,
                     );
                 }
             }
@@ -471,21 +507,23 @@ pub fn simulate(
         }
         // Measure: the base at the reading is the row's in every convention (with
         // `HeldFromSample` it has just stepped there).
-        let ctx = context(ct, geo, data.t[i], dt, z, v, u_cmd);
         let mut d = u_eff_prev - z;
-        for e in effects.iter() {
-            d = e.measured_deflection_nm(&ctx, d);
-        }
-        for e in effects.iter_mut() {
-            e.end_of_step(&ctx);
+        if !bare || trace.is_some() {
+            let ctx = context(ct, geo, data.t[i], dt, z, v, u_cmd);
+            for e in effects.iter() {
+                d = e.measured_deflection_nm(&ctx, d);
+            }
+            for e in effects.iter_mut() {
+                e.end_of_step(&ctx);
+            }
+            if let Some(tr) = trace.as_deref_mut() {
+                tr.z.push(z);
+                tr.depth.push(ct.h - z);
+                tr.force.push(ctx.contact_force_nn);
+                tr.u_eff.push(u_eff_prev);
+            }
         }
         out.push(d + nom.offset);
-        if let Some(tr) = trace.as_deref_mut() {
-            tr.z.push(z);
-            tr.depth.push(ct.h - z);
-            tr.force.push(ctx.contact_force_nn);
-            tr.u_eff.push(u_eff_prev);
-        }
     }
     out
 }
@@ -501,7 +539,15 @@ fn context(
     v: f64,
     u_cmd: f64,
 ) -> EffectContext {
-    let (fe, fd) = force(ct, geo, z, v);
+    let d = ct.h - z;
+    // No element is engaged at δ ≤ 0 (every sag is ≥ 0), nor for the continuum: as `force`
+    // and `engaged` would say.
+    let (vol, area, engaged) = if d > 0.0 { geo.at(d) } else { (0.0, 0.0, 0) };
+    let (fe, fd) = if d > 0.0 {
+        (ct.k_a * vol, -ct.c_a * area * v)
+    } else {
+        (0.0, 0.0)
+    };
     EffectContext {
         time_us: t,
         dt_us: dt,
@@ -512,8 +558,8 @@ fn context(
         y_nm: 0.0,
         contact_force_nn: fe + fd,
         elastic_force_nn: fe,
-        depth_nm: ct.h - z,
-        active_elements: geo.engaged(ct.h - z),
+        depth_nm: d,
+        active_elements: engaged,
     }
 }
 
@@ -641,22 +687,41 @@ impl InputPoly {
     }
 }
 
-/// The last propagator and its key: in free flight every interval has the same one, and
-/// `Propagator::new` (an exp and a sin/cos pair) is most of a free step's cost.
+/// Propagators by key (c, k, τ) at one M: in free flight every interval has the same one,
+/// and on a lattice one per number of engaged elements, while `Propagator::new` (an exp and
+/// a sin/cos pair) is most of a step's cost. A few entries, the least recently used
+/// replaced: an engagement event's pieces (one-off τ) would otherwise evict the full
+/// interval's propagator of the count before and after it. Exact keys, so the result is the uncached one.
 #[derive(Default)]
 struct PropagatorCache {
-    key: (f64, f64, f64),
-    p: Propagator,
+    entries: [(f64, f64, f64, Propagator, u64); PROPAGATOR_CACHE],
+    clock: u64,
 }
+
+/// Entries of [`PropagatorCache`]: the counts a tap's depth visits within a few samples.
+const PROPAGATOR_CACHE: usize = 8;
 
 impl PropagatorCache {
     #[inline]
     fn get(&mut self, m: f64, c: f64, k: f64, tau: f64) -> Propagator {
-        if self.key != (c, k, tau) || self.key.2 == 0.0 {
-            self.key = (c, k, tau);
-            self.p = Propagator::new(m, c, k, tau);
-        }
-        self.p
+        self.clock += 1;
+        // τ = 0 marks an empty entry (a piece of zero length is recomputed, as before).
+        let hit = self
+            .entries
+            .iter()
+            .position(|e| e.2 != 0.0 && (e.0, e.1, e.2) == (c, k, tau));
+        let i = match hit {
+            Some(i) => i,
+            None => {
+                let i = (0..PROPAGATOR_CACHE)
+                    .min_by_key(|&i| self.entries[i].4)
+                    .unwrap_or(0);
+                self.entries[i] = (c, k, tau, Propagator::new(m, c, k, tau), 0);
+                i
+            }
+        };
+        self.entries[i].4 = self.clock;
+        self.entries[i].3
     }
 }
 
@@ -729,6 +794,17 @@ impl Dyn<'_> {
             }
             let n0 = self.geo.engaged(h - zz);
             let tau = (1.0 - s) * dt;
+            // The Hermite path stays within the ends' range widened by 4/27·τ·(|Ż₀| + |Ż₁|)
+            // (its value weights h₀₀ + h₀₁ = 1 are in [0, 1], its slope weights at most 4/27
+            // in size), plus a margin for rounding: where the count is the same at both edges
+            // none of the eight points below can differ from n0 (the count is monotone in
+            // the depth), so the search is skipped; most samples are such, free or pressed.
+            let swing = 4.0 / 27.0 * tau * (vv.abs() + v1.abs());
+            let margin = 1e-12 * (zz.abs() + z1.abs() + swing) + 1e-300;
+            let (z_lo, z_hi) = (zz.min(z1) - swing - margin, zz.max(z1) + swing + margin);
+            if self.geo.engaged(h - z_hi) == n0 && self.geo.engaged(h - z_lo) == n0 {
+                return (z1, v1);
+            }
             let mut hit = None;
             for j in 1..=8 {
                 let q = j as f64 / 8.0;
@@ -786,12 +862,12 @@ impl Dyn<'_> {
         let tau = (s1 - s0) * dt;
         let d = self.ct.h - z;
         let (kt, ct, f_hold) = if d > 0.0 {
-            let a = self.geo.area(d);
+            let (vol, a, _) = self.geo.at(d);
             let kt = self.ct.k_a * a;
             let cc = self.ct.c_a * a;
             // F ≈ f_hold − kt·Z − cc·Ż around the start (exact on a lattice until the next
             // engagement).
-            let f0 = self.ct.k_a * self.geo.volume(d) - cc * v;
+            let f0 = self.ct.k_a * vol - cc * v;
             (kt, cc, f0 + kt * z + cc * v)
         } else {
             (0.0, 0.0, 0.0)
@@ -821,13 +897,14 @@ impl Dyn<'_> {
 
 /// One quasi-static sample: Z where `K·(U − Z) − k_lin·Z + F_ts + F_eff = 0` with the dampers
 /// by backward Euler; the effects' forces are evaluated at the solution (twice iterated).
+/// `ctx0` is the context at the interval's start, given when there are effects.
 #[allow(clippy::too_many_arguments)]
 fn quasi_static_step(
     inst: &Instrument,
     geo: &BedGeometry,
     ct: Contact,
     effects: &[Box<dyn Effect>],
-    ctx0: &EffectContext,
+    ctx0: Option<&EffectContext>,
     u: f64,
     z_prev: f64,
     dt: f64,
@@ -835,11 +912,13 @@ fn quasi_static_step(
     c_lin: f64,
 ) -> (f64, f64) {
     let mut f_eff = 0.0;
-    for e in effects {
-        f_eff += e.tip_force_nn(ctx0);
+    if let Some(ctx0) = ctx0 {
+        for e in effects {
+            f_eff += e.tip_force_nn(ctx0);
+        }
     }
     let mut z = solve_quasi_static(inst.k, k_lin, c_lin, ct, geo, u, z_prev, dt, f_eff);
-    if !effects.is_empty() {
+    if let Some(ctx0) = ctx0 {
         for _ in 0..2 {
             let v = (z - z_prev) / dt;
             let (fe, fd) = force(ct, geo, z, v);
@@ -1007,6 +1086,90 @@ mod tests {
             (k * (z - u) - by_hand).abs() < 1e-9,
             "{} vs {by_hand}",
             k * (z - u)
+        );
+    }
+
+    /// The propagator cache returns `Propagator::new` bit for bit, through hits, misses and
+    /// evictions (more keys than entries, revisited out of order), and τ = 0 is never a hit.
+    #[test]
+    fn the_propagator_cache_returns_the_uncached_propagator() {
+        let m = 11.8;
+        let mut cache = PropagatorCache::default();
+        let keys: Vec<(f64, f64, f64)> = (0..PROPAGATOR_CACHE + 5)
+            .map(|i| {
+                (
+                    0.01 + 0.3 * i as f64,
+                    0.18 + 0.05 * i as f64,
+                    2.0 - 0.1 * i as f64,
+                )
+            })
+            .collect();
+        let order = [
+            0usize, 1, 0, 2, 3, 4, 5, 6, 7, 8, 0, 9, 1, 12, 11, 10, 0, 3, 3, 12,
+        ];
+        for &i in &order {
+            let (c, k, tau) = keys[i];
+            assert_eq!(
+                cache.get(m, c, k, tau),
+                Propagator::new(m, c, k, tau),
+                "key {i}"
+            );
+        }
+        let zero = cache.get(m, 0.5, 0.2, 0.0);
+        assert_eq!(zero, Propagator::new(m, 0.5, 0.2, 0.0));
+        // An entry never filled is all zeros with τ = 0: a zero key must not read it.
+        let mut fresh = PropagatorCache::default();
+        assert_eq!(
+            fresh.get(m, 0.0, 0.0, 0.0),
+            Propagator::new(m, 0.0, 0.0, 0.0)
+        );
+    }
+
+    /// The lattice's event search is skipped only where it could find nothing: wherever the
+    /// bound's two edges have the same engaged count, so have the eight Hermite points the
+    /// search looks at, over pieces of every kind (free, pressed, crossing, turning).
+    #[test]
+    fn the_lattice_search_is_skipped_only_where_the_hermite_points_agree() {
+        let r = 300.0;
+        let geo = BedGeometry::new(
+            Bed::Lattice {
+                pitch_nm: 100.0,
+                offset: [0.25, 0.0],
+            },
+            r,
+        );
+        let h = 0.0;
+        let mut rng = crate::plant::rng::Xoshiro256pp::new(7);
+        let (mut skipped, mut searched) = (0, 0);
+        for _ in 0..20_000 {
+            // Depths from −50 to 250 nm, velocities up to 40 nm per sample, τ up to 2 µs.
+            let z0 = -250.0 + 300.0 * rng.next_open01();
+            let z1 = z0 + 40.0 * (2.0 * rng.next_open01() - 1.0);
+            let tau = 0.05 + 2.0 * rng.next_open01();
+            let v0 = 20.0 * (2.0 * rng.next_open01() - 1.0) / tau;
+            let v1 = 20.0 * (2.0 * rng.next_open01() - 1.0) / tau;
+            let n0 = geo.engaged(h - z0);
+            let swing = 4.0 / 27.0 * tau * (v0.abs() + v1.abs());
+            let margin = 1e-12 * (z0.abs() + z1.abs() + swing) + 1e-300;
+            let (z_lo, z_hi) = (z0.min(z1) - swing - margin, z0.max(z1) + swing + margin);
+            if geo.engaged(h - z_hi) == n0 && geo.engaged(h - z_lo) == n0 {
+                skipped += 1;
+                for j in 1..=8 {
+                    let zq = hermite(z0, v0, z1, v1, tau, j as f64 / 8.0);
+                    assert_eq!(
+                        geo.engaged(h - zq),
+                        n0,
+                        "{z0} {v0} {z1} {v1} {tau} at {j}/8"
+                    );
+                }
+            } else {
+                searched += 1;
+            }
+        }
+        // Both branches are exercised.
+        assert!(
+            skipped > 1000 && searched > 1000,
+            "{skipped} skipped, {searched} searched"
         );
     }
 }

@@ -27,6 +27,7 @@ use super::fit::{levenberg_marquardt, linear_least_squares, ssr, LmOptions, Para
 use super::model::{simulate, Bed, Input, Nominal, Trace};
 use super::noise::{held_out_test, HeldOut, NoiseModel, MAX_ORDER};
 use super::problem::Problem;
+use crate::numerics::golden_section;
 use crate::plant::effects::{Effect, EffectKind};
 use visco_core::units::{DAMPING, FORCE, LENGTH, TIME};
 
@@ -1204,30 +1205,18 @@ impl Problem {
     }
 }
 
-/// Golden-section search of `f` between `lo` and `hi` (in ln when both are positive) for
-/// `iterations` steps; `f` is told every point it is evaluated at (callers keep the best).
+/// Golden-section search of `f` between `lo` and `hi` (in ln when both are positive: the
+/// shape grids are geometric there) for `iterations` reductions of the bracket,
+/// `iterations + 1` evaluations; `f` is told every point it is evaluated at (callers keep the
+/// best, with what its evaluation computed).
 fn golden_probe(lo: f64, hi: f64, iterations: usize, mut f: impl FnMut(f64) -> f64) {
     if !(hi > lo) {
         return;
     }
-    let log = lo > 0.0;
-    type Map = fn(f64) -> f64;
-    let (fwd, back): (Map, Map) = if log {
-        (f64::ln, f64::exp)
+    if lo > 0.0 {
+        golden_section(lo.ln(), hi.ln(), iterations, |u| f(u.exp()));
     } else {
-        (|x| x, |x| x)
-    };
-    let (mut a, mut b) = (fwd(lo), fwd(hi));
-    let gr = (5f64.sqrt() - 1.0) / 2.0;
-    for _ in 0..iterations {
-        let x1 = b - gr * (b - a);
-        let x2 = a + gr * (b - a);
-        let (s1, s2) = (f(back(x1)), f(back(x2)));
-        if s1 < s2 {
-            b = x2;
-        } else {
-            a = x1;
-        }
+        golden_section(lo, hi, iterations, f);
     }
 }
 

@@ -67,45 +67,8 @@ pub fn moving_average(v: &[f64], half: usize) -> Vec<f64> {
         .collect()
 }
 
-/// Minimum of `f` on `[lo, hi]`: a grid of `grid` intervals, then golden section around the
-/// best grid point (robust to a few local minima, exact to ~1e-9 of the bracket).
-pub fn minimize(f: impl Fn(f64) -> f64, lo: f64, hi: f64, grid: usize) -> f64 {
-    let xs: Vec<f64> = (0..=grid)
-        .map(|j| lo + (hi - lo) * j as f64 / grid as f64)
-        .collect();
-    let mut best = (f64::INFINITY, 0usize);
-    for (j, &x) in xs.iter().enumerate() {
-        let v = f(x);
-        if v < best.0 {
-            best = (v, j);
-        }
-    }
-    let (mut a, mut b) = (xs[best.1.saturating_sub(1)], xs[(best.1 + 1).min(grid)]);
-    let g = (5f64.sqrt() - 1.0) / 2.0;
-    let (mut x1, mut x2) = (b - g * (b - a), a + g * (b - a));
-    let (mut f1, mut f2) = (f(x1), f(x2));
-    for _ in 0..40 {
-        if f1 < f2 {
-            b = x2;
-            x2 = x1;
-            f2 = f1;
-            x1 = b - g * (b - a);
-            f1 = f(x1);
-        } else {
-            a = x1;
-            x1 = x2;
-            f1 = f2;
-            x2 = a + g * (b - a);
-            f2 = f(x2);
-        }
-    }
-    let x = 0.5 * (a + b);
-    if f(x) <= best.0 {
-        x
-    } else {
-        xs[best.1]
-    }
-}
+/// The grid-and-golden-section minimiser, which lives with the other shared numerics.
+pub use crate::numerics::minimize;
 
 /// Least squares of `y = a·x₁ + b·x₂` with `b ≥ 0`, from the normal-equation sums
 /// (Σx₁², Σx₁x₂, Σx₂², Σx₁y, Σx₂y, Σy²), solved with both columns scaled to unit norm and
