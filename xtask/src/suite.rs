@@ -204,57 +204,23 @@ pub fn refsim_tests() -> Result<()> {
         &[],
     )?;
     run_in_root(&py, &["-m", "pytest", "-q", "refsim/tests"], &[])?;
-    let dir = root.join("target/refsim-ci");
-    if dir.exists() {
-        std::fs::remove_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    }
-    let dir_s = dir.to_string_lossy().into_owned();
-    run_in_root(
+    // Every class but hydrodynamic drag: on a discrete-bed force curve refsim's drag
+    // calibration reaches only 0.2x the noise (a generator defect, issue 13), which the
+    // magnitude check of the test would rightly refuse.
+    let dir_s = refsim_generate(
         &py,
+        "target/refsim-ci",
         &[
-            "-m",
-            "refsim",
-            "generate",
-            "--out",
-            &dir_s,
-            "--seeds",
-            "1",
-            "--jobs",
-            "2",
-            "--discrete-only",
-            // Every class but hydrodynamic drag: on a discrete-bed force curve refsim's drag
-            // calibration reaches only 0.2x the noise (a generator defect, issue 13), which
-            // the magnitude check below would rightly refuse.
             "--classes",
             "clean,nonlinear-stiffness,adhesion,surface-attraction,stress-relaxation,\
              baseline-tilt,thermal-drift,second-eigenmode,piezo-creep,plastic-deformation",
         ],
-        &[],
     )?;
     // Force curves with an interference wave on the detector: one clean, one with an effect.
-    let wave_dir = root.join("target/refsim-ci-wave");
-    if wave_dir.exists() {
-        std::fs::remove_dir_all(&wave_dir).map_err(|e| format!("{}: {e}", wave_dir.display()))?;
-    }
-    let wave_s = wave_dir.to_string_lossy().into_owned();
-    run_in_root(
+    let wave_s = refsim_generate(
         &py,
-        &[
-            "-m",
-            "refsim",
-            "generate",
-            "--out",
-            &wave_s,
-            "--seeds",
-            "1",
-            "--jobs",
-            "2",
-            "--discrete-only",
-            "--interference",
-            "--classes",
-            "clean,adhesion",
-        ],
-        &[],
+        "target/refsim-ci-wave",
+        &["--interference", "--classes", "clean,adhesion"],
     )?;
     cargo_env(
         &[
@@ -272,6 +238,31 @@ pub fn refsim_tests() -> Result<()> {
             ("VISCO_REFSIM_WAVE_DIR", &wave_s),
         ],
     )
+}
+
+/// `python -m refsim generate` of one seed per class (discrete beds, two jobs) into `rel` under
+/// the root, emptied first; `extra` adds the class list and options. Returns the directory.
+fn refsim_generate(py: &str, rel: &str, extra: &[&str]) -> Result<String> {
+    let dir = firmware::root().join(rel);
+    if dir.exists() {
+        std::fs::remove_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    }
+    let dir_s = dir.to_string_lossy().into_owned();
+    let mut args = vec![
+        "-m",
+        "refsim",
+        "generate",
+        "--out",
+        &dir_s,
+        "--seeds",
+        "1",
+        "--jobs",
+        "2",
+        "--discrete-only",
+    ];
+    args.extend_from_slice(extra);
+    run_in_root(py, &args, &[])?;
+    Ok(dir_s)
 }
 
 fn cargo_env(args: &[&str], env: &[(&str, &str)]) -> Result<()> {
