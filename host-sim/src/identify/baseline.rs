@@ -140,7 +140,7 @@ pub fn fit_baseline(u: &[f64], d: &[f64], rows: Range<usize>) -> Baseline {
     let u_ref = *uu.last().unwrap_or(&0.0);
     let linear = uu.len() >= MIN_ROWS_TILT;
     let line = if linear {
-        solve(&design(uu, u_ref, None, false), dd)
+        solve(&design(uu, u_ref, None, false), dd, false)
     } else {
         None
     };
@@ -226,7 +226,8 @@ fn design(uu: &[f64], u_ref: f64, period: Option<f64>, split: bool) -> DMatrix<f
 }
 
 /// Least squares by Householder QR (nalgebra); `None` when the columns are dependent.
-fn solve(x: &DMatrix<f64>, y: &[f64]) -> Option<Fit> {
+/// `with_cov`: also (XᵀX)⁻¹, which only the halves' test needs (not the period search).
+fn solve(x: &DMatrix<f64>, y: &[f64], with_cov: bool) -> Option<Fit> {
     let (n, p) = x.shape();
     if n <= p {
         return None;
@@ -238,7 +239,11 @@ fn solve(x: &DMatrix<f64>, y: &[f64]) -> Option<Fit> {
     let coef = r.solve_upper_triangular(&qty.rows(0, p))?;
     let fitted = x * &coef;
     let resid = y.iter().zip(fitted.iter()).map(|(a, b)| a - b).collect();
-    let cov_unit = r.try_inverse().map(|ri| &ri * ri.transpose());
+    let cov_unit = if with_cov {
+        r.try_inverse().map(|ri| &ri * ri.transpose())
+    } else {
+        None
+    };
     Some(Fit {
         coef: coef.iter().copied().collect(),
         resid,
@@ -276,11 +281,12 @@ fn fit_wave(
     let independent = ((f_hi - f_lo) * travel).max(1.0);
     let grid = (4.0 * independent).ceil() as usize;
     let ssr_at = |f: f64| {
-        solve(&design(uu, u_ref, Some(1.0 / f), false), dd).map_or(f64::INFINITY, |x| x.ssr())
+        solve(&design(uu, u_ref, Some(1.0 / f), false), dd, false)
+            .map_or(f64::INFINITY, |x| x.ssr())
     };
     let f_best = minimize(ssr_at, f_lo, f_hi, grid.max(8));
     let period = 1.0 / f_best;
-    let fit = solve(&design(uu, u_ref, Some(period), false), dd)?;
+    let fit = solve(&design(uu, u_ref, Some(period), false), dd, false)?;
     let ssr_line: f64 = resid_line.iter().map(|r| r * r).sum();
     let ssr = fit.ssr();
     let var = ssr / (n - 4) as f64;
@@ -304,7 +310,7 @@ fn fit_wave(
         return None;
     }
     // Stationary: the halves' waves at the same period, with their standard errors.
-    let halves = solve(&design(uu, u_ref, Some(period), true), dd)?;
+    let halves = solve(&design(uu, u_ref, Some(period), true), dd, true)?;
     let cov = halves.cov_unit.as_ref()?;
     let var_h = halves.ssr() / (n - 6) as f64;
     let (w1, w2) = (
