@@ -34,6 +34,12 @@
 //!   fitted: the free response is linear in both. The header's f₀ and Q are calibrations, not
 //!   truths: small corrections are fitted under a Gaussian prior of their stated tolerance
 //!   (`search`).
+//!   A force curve sampled below its lever's resonance is still integrated so when the
+//!   header gives f₀ and Q and a step of U would ring on past the next sample
+//!   ([`super::problem::UNSETTLED`]): a DAC's staircase at the sampling rate kicks a high-Q
+//!   lever at every row, and what the reading sees of that ringing is aliased. There f₀ and Q
+//!   are taken as given (a per cent of f₀ moves the sampled phase by radians) and every
+//!   input convention stays a start of the first stage.
 //! * **Quasi-static** (force curves: µm/s, kHz sampling, far below resonance): the cantilever
 //!   is a spring, `K·(U − Z) + F_ts + F_effects = 0` at every sample, solved implicitly
 //!   (backward Euler for the dampers), the effects' forces iterated to the sample's state.

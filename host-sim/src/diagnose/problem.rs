@@ -28,6 +28,12 @@ pub const BLOCK: usize = 2;
 /// A dynamic model needs the resonance sampled at least this many times per period.
 pub const DYNAMIC_SAMPLES_PER_PERIOD: f64 = 4.0;
 
+/// The share of a step's transient left one sample later above which a lever whose
+/// resonance the sampling does not resolve is still integrated dynamically: a DAC's staircase
+/// at the sampling rate rings a high-Q lever for longer than a sample (a 17 kHz, Q 76 lever
+/// sampled at 1 kHz keeps half of each step's ringing), which no quasi-static model follows.
+pub const UNSETTLED: f64 = 1e-3;
+
 /// Why a recording cannot be diagnosed.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ProblemError(pub String);
@@ -164,6 +170,9 @@ impl Problem {
         let (m_int, c_int, dynamics_source) = match m_si {
             Some(m) => {
                 let f0 = (k / m).sqrt() / (2.0 * std::f64::consts::PI);
+                // A step of U leaves e^(−π·f₀·Δt/Q) of its transient at the next sample.
+                let q = (k * m).sqrt() / c_si.max(1e-300);
+                let left = (-std::f64::consts::PI * f0 / (q * fs)).exp();
                 if fs >= DYNAMIC_SAMPLES_PER_PERIOD * f0 {
                     (
                         Some(m / MASS),
@@ -172,8 +181,18 @@ impl Problem {
                             "{source}; dynamic model (f0 = {f0:.4e} Hz, sampled at {fs:.4e} Hz)"
                         ),
                     )
+                } else if left > UNSETTLED {
+                    (
+                        Some(m / MASS),
+                        c_si / DAMPING,
+                        format!(
+                            "{source}; dynamic model, resonance aliased (f0 = {f0:.4e} Hz, \
+                             sampled at {fs:.4e} Hz): a step of U still rings {left:.1e} of \
+                             itself one sample later"
+                        ),
+                    )
                 } else {
-                    (None, 0.0, format!("{source}; quasi-static model: f0 = {f0:.4e} Hz is not resolved at {fs:.4e} Hz"))
+                    (None, 0.0, format!("{source}; quasi-static model: f0 = {f0:.4e} Hz is not resolved at {fs:.4e} Hz, and a step of U settles within a sample"))
                 }
             }
             None => (None, 0.0, source),

@@ -359,12 +359,19 @@ impl Diagnosis {
                     v0_m_per_s: (nom.v0 * LENGTH / TIME).into(),
                 }),
                 Some(jr::Calibration {
-                    model: format!(
-                        "the header's f0 and Q as calibrations: corrections fitted under a \
-                         Gaussian prior of {:.1} % (f0) and {:.0} % (Q), K kept",
-                        100.0 * super::search::F0_TOLERANCE,
-                        100.0 * super::search::Q_TOLERANCE
-                    ),
+                    model: if p.resonance_resolved() {
+                        format!(
+                            "the header's f0 and Q as calibrations: corrections fitted under a \
+                             Gaussian prior of {:.1} % (f0) and {:.0} % (Q), K kept",
+                            100.0 * super::search::F0_TOLERANCE,
+                            100.0 * super::search::Q_TOLERANCE
+                        )
+                    } else {
+                        "the header's f0 and Q as given: the sampling aliases the resonance, \
+                         so a correction would only shift the sampled phase of the lever's \
+                         ringing (a lag of the response, which a drag also makes)"
+                            .into()
+                    },
                     f0_correction: nom.f0_scale.into(),
                     q_correction: nom.q_scale.into(),
                     f0_hz: cal.f0_mhz().map_or(f64::NAN, |f| f / TIME).into(),

@@ -267,6 +267,12 @@ impl Problem {
                 Slot::V0,
                 Param::linear("v0_nm_per_us", nom.v0, -1e7, 1e7, w0),
             ));
+        }
+        // The calibrations only where the sampling resolves the resonance: aliased, the
+        // ringing after a DAC's step is sampled at a phase that moves by radians for a per
+        // cent of f₀, and a corrected f₀ with a held input then reads as any lag of the
+        // response, a drag among them.
+        if self.inst.dynamic() && self.resonance_resolved() {
             let b = CALIBRATION_BOUND;
             out.push((
                 Slot::F0,
@@ -815,6 +821,15 @@ impl Problem {
         (held_out_test(&e0, &e1, &self.held, sigma), noise)
     }
 
+    /// Whether a dynamic recording samples its resonance at least
+    /// [`super::problem::DYNAMIC_SAMPLES_PER_PERIOD`] times per period (a quasi-static one:
+    /// trivially).
+    pub fn resonance_resolved(&self) -> bool {
+        self.inst
+            .f0_mhz()
+            .is_none_or(|f0| f0 * self.dt_us * super::problem::DYNAMIC_SAMPLES_PER_PERIOD <= 1.0)
+    }
+
     /// The bed's form (module docs of [`super::model`]): the continuum fit `best`, or a lattice
     /// of discrete elements if one fits the fit samples better by more than its searched
     /// nuisance parameters can by chance. Pitches from R/2 to R/6 (finer lattices are the
@@ -921,7 +936,8 @@ impl Problem {
         // The input between samples of a dynamic recording (a DAC's staircase, a sampled
         // line, a smooth command): whichever fits the first start best, each convention
         // polished from the best fit so far (they differ by a fraction of the excitation).
-        // A quasi-static recording keeps the input held: there the two DAC timings differ by
+        // A quasi-static recording (no f₀ and Q, or a lever that settles within a sample)
+        // keeps the input held: there the two DAC timings differ by
         // exactly a drag on the base's velocity of K·Δt (the lever follows at once), which
         // the data cannot tell from a liquid's drag; chosen by the nominal fit, the timing
         // would escape the effect's held-out test (it did on a real JPK curve, whose drag it
@@ -942,8 +958,20 @@ impl Problem {
             };
             m.nominal.input = inp;
             let iterations = if input_fits.is_empty() { 40 } else { 15 };
-            let (s, ev) = self.polish(&mut m, &env0, iterations);
+            let (mut s, ev) = self.polish(&mut m, &env0, iterations);
             evaluations += ev;
+            // A resonance not resolved by the sampling (a lever ringing on after each of a
+            // DAC's steps) is aliased: the sampled phase of its ringing moves by radians for
+            // a per cent of f₀, so one convention's optimum is no start for another's.
+            if !input_fits.is_empty() && !self.resonance_resolved() {
+                let mut fresh = Model::nominal(inits[0].clone());
+                fresh.nominal.input = inp;
+                let (s2, ev) = self.polish(&mut fresh, &env0, 40);
+                evaluations += ev;
+                if s2 < s {
+                    (s, m) = (s2, fresh);
+                }
+            }
             input_fits.push((s, m));
         }
         input_fits.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -976,8 +1004,21 @@ impl Problem {
         // The runner-up input convention stays a start of the first stage too: a drag on the
         // base's velocity acts through U̇ as the convention does, and the nominal model's
         // choice can absorb one while the extension needs the other.
-        if let Some(second) = input_fits.get(1) {
-            starts.push(second.clone());
+        // Where the resonance is aliased every convention stays a start: the lag each
+        // implies is then as large as the effects (a force curve's sample is milliseconds).
+        // Where the resonance is aliased every convention stays a start, on the chosen bed:
+        // the lag each implies is then as large as the effects (a force curve's sample is
+        // milliseconds).
+        if self.resonance_resolved() {
+            starts.extend(input_fits.get(1).cloned());
+        } else {
+            for other in input_fits.iter().skip(1) {
+                let mut m = input_fits[0].1.clone();
+                m.nominal.input = other.1.nominal.input;
+                let (s, ev) = self.polish(&mut m, &env0, 15);
+                evaluations += ev;
+                starts.push(if s < other.0 { (s, m) } else { other.clone() });
+            }
         }
         // The continuum stays a start when a lattice was chosen: a coarse lattice bends the
         // force–depth law a little, so it can stand in for part of a nonlinear stiffness (or
