@@ -1004,8 +1004,6 @@ impl Problem {
         // The runner-up input convention stays a start of the first stage too: a drag on the
         // base's velocity acts through U̇ as the convention does, and the nominal model's
         // choice can absorb one while the extension needs the other.
-        // Where the resonance is aliased every convention stays a start: the lag each
-        // implies is then as large as the effects (a force curve's sample is milliseconds).
         // Where the resonance is aliased every convention stays a start, on the chosen bed:
         // the lag each implies is then as large as the effects (a force curve's sample is
         // milliseconds).
