@@ -28,6 +28,12 @@ pub const BLOCK: usize = 2;
 /// A dynamic model needs the resonance sampled at least this many times per period.
 pub const DYNAMIC_SAMPLES_PER_PERIOD: f64 = 4.0;
 
+/// Whether sampling at `fs` resolves a resonance at `f0` (any one unit of frequency): at
+/// least [`DYNAMIC_SAMPLES_PER_PERIOD`] samples per period.
+pub fn resolves(fs: f64, f0: f64) -> bool {
+    fs >= DYNAMIC_SAMPLES_PER_PERIOD * f0
+}
+
 /// The share of a step's transient left one sample later above which a lever whose
 /// resonance the sampling does not resolve is still integrated dynamically: a DAC's staircase
 /// at the sampling rate rings a high-Q lever for longer than a sample (a 17 kHz, Q 76 lever
@@ -173,7 +179,7 @@ impl Problem {
                 // A step of U leaves e^(−π·f₀·Δt/Q) of its transient at the next sample.
                 let q = (k * m).sqrt() / c_si.max(1e-300);
                 let left = (-std::f64::consts::PI * f0 / (q * fs)).exp();
-                if fs >= DYNAMIC_SAMPLES_PER_PERIOD * f0 {
+                if resolves(fs, f0) {
                     (
                         Some(m / MASS),
                         c_si / DAMPING,

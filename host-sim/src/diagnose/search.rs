@@ -827,7 +827,7 @@ impl Problem {
     pub fn resonance_resolved(&self) -> bool {
         self.inst
             .f0_mhz()
-            .is_none_or(|f0| f0 * self.dt_us * super::problem::DYNAMIC_SAMPLES_PER_PERIOD <= 1.0)
+            .is_none_or(|f0| super::problem::resolves(1.0 / self.dt_us, f0))
     }
 
     /// The bed's form (module docs of [`super::model`]): the continuum fit `best`, or a lattice
