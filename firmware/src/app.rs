@@ -5,8 +5,8 @@
 //! (`ESTIMATOR`) to the lower-priority estimator interrupt. The main loop touches them only
 //! through [`with_loop`] / [`with_both`], which mask the interrupts for the duration (a few
 //! hundred cycles, only on configuration commands, never per sample). Data moves through
-//! lock-free `heapless::spsc` queues: telemetry loop → main, blocks loop → estimator, results
-//! estimator → loop, and on QEMU replay samples main → loop; core commands main → loop are a
+//! lock-free `heapless::spsc` queues: telemetry loop → main, estimating samples and block
+//! headers loop → estimator, results estimator → loop, and on QEMU replay samples main → loop; core commands main → loop are a
 //! command byte.
 
 use crate::board;
@@ -14,9 +14,10 @@ use core::cell::UnsafeCell;
 use core::sync::atomic::Ordering;
 use heapless::spsc::{Consumer, Queue};
 use visco_firmware::core_glue::{self, CoreCommand, LoopCore, StagedConfig};
-use visco_firmware::core_glue::{Block, BlockResult};
+use visco_firmware::core_glue::{Block, BlockResult, Sample};
 use visco_firmware::loop_body::{
-    CommandSlot, Counters, EstimatorState, Item, QueueLink, ESTIMATOR_DEPTH, TELEMETRY_DEPTH,
+    CommandSlot, Counters, EstimatorState, Item, QueueLink, ESTIMATOR_DEPTH, SAMPLE_DEPTH,
+    TELEMETRY_DEPTH,
 };
 use visco_protocol::{
     ack, frame, param, Command, ConfigRejectedFrame, FrameDecoder, PerSample, SeqTracker,
@@ -227,20 +228,24 @@ pub fn run() -> ! {
         Ok(b) => (b.core, b.task, b.adc),
         Err(_) => board::fatal(5),
     };
-    // The estimator's queues: blocks loop → estimator, results back.
-    let (Some(blocks), Some(results)) = (
+    // The estimator's queues: samples and block headers loop → estimator, results back.
+    let (Some(blocks), Some(samples), Some(results)) = (
         cortex_m::singleton!(: Queue<Block, { ESTIMATOR_DEPTH + 1 }> = Queue::new()),
+        cortex_m::singleton!(: Queue<Sample, { SAMPLE_DEPTH + 1 }> = Queue::new()),
         cortex_m::singleton!(: Queue<BlockResult, { ESTIMATOR_DEPTH + 1 }> = Queue::new()),
     ) else {
         board::fatal(11)
     };
     let (block_tx, block_rx) = blocks.split();
+    let (sample_tx, sample_rx) = samples.split();
     let (result_tx, result_rx) = results.split();
-    let link = QueueLink {
-        blocks: block_tx,
-        results: result_rx,
-        pend: board::pend_estimator,
-    };
+    let link = QueueLink::new(
+        block_tx,
+        sample_tx,
+        result_rx,
+        board::pend_estimator,
+        &COUNTERS,
+    );
     let state = board::make_loop(&mut b, adc, core, link, tel_tx, &COMMANDS, &COUNTERS);
     board::mask_estimator();
     // SAFETY: the estimator interrupt is masked.
@@ -248,6 +253,7 @@ pub fn run() -> ! {
         ESTIMATOR.set(EstimatorState {
             task,
             blocks: block_rx,
+            samples: sample_rx,
             results: result_tx,
         })
     };
@@ -434,8 +440,8 @@ fn apply_config(
         Ok(b) => {
             let (core, task, adc) = (b.core, b.task, b.adc);
             with_both(move |l, e| {
-                // Blocks and results of the old core are dropped with it.
-                while e.blocks.dequeue().is_some() {}
+                // Samples, blocks and results of the old core are dropped with it.
+                e.clear();
                 e.task = task;
                 l.replace_core(core);
                 board::set_scales(l, adc);

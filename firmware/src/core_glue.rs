@@ -34,8 +34,11 @@ pub type AdcScale = <Number as LoopReal>::AdcScale;
 /// Why a configuration was rejected: the core's own error, naming the field.
 pub type ConfigError = visco_core::ConfigError;
 
-/// A block of samples for the estimator task (loop → estimator interrupt).
+/// A block header for the estimator task (loop → estimator interrupt).
 pub type Block = visco_core::schedule::Block<Number>;
+/// One estimating sample for the estimator task (loop → estimator interrupt).
+pub type Sample = visco_core::schedule::Sample<Number>;
+pub use visco_core::schedule::SampleSink;
 /// The estimator task's result (estimator interrupt → loop).
 pub type BlockResult = visco_core::schedule::BlockResult<Number>;
 /// The estimator task, run by the lower-priority estimator interrupt.
@@ -90,15 +93,16 @@ pub const RECORD_READY: u32 = visco_core::status::RECORD_READY;
 pub trait LoopCore {
     /// Applies a command (called in the loop interrupt, before the step).
     fn apply_command(&mut self, cmd: CoreCommand);
-    /// One loop sample: the measured deflection as [`crate::scale::Scale::to_input`] gives it.
-    /// When [`Self::block_due`], the block is taken first ([`Self::close_block`]).
-    fn step(&mut self, d: Number) -> StepOut;
+    /// One loop sample: the measured deflection as [`crate::scale::Scale::to_input`] gives it;
+    /// an estimating sample goes to `sink`. When [`Self::block_due`], the block is taken
+    /// first ([`Self::close_block`]).
+    fn step(&mut self, d: Number, sink: &mut impl SampleSink<Number>) -> StepOut;
     /// The next step closes a block: deliver the estimator's result, then close the block.
     fn block_due(&self) -> bool;
     /// Adopts the estimator task's result.
     fn deliver(&mut self, r: &BlockResult);
-    /// Closes the block (when [`Self::block_due`], before the step) and hands it to `send`
-    /// (the queue's enqueue: one copy, into the queue's slot); `None` when it is empty.
+    /// Closes the block (when [`Self::block_due`], before the step) and hands its header to
+    /// `send` (the queue's enqueue); `None` when it is empty.
     fn close_block<R>(&mut self, send: impl FnOnce(Block) -> R) -> Option<R>;
     /// U, X, Y of the step just taken, in metres (telemetry).
     fn outputs_m(&self, out: &StepOut) -> [f32; 3];
@@ -124,8 +128,8 @@ impl LoopCore for ActiveCore {
         );
     }
     #[inline(always)]
-    fn step(&mut self, d: Number) -> StepOut {
-        Number::step_loop(self, d)
+    fn step(&mut self, d: Number, sink: &mut impl SampleSink<Number>) -> StepOut {
+        Number::step_loop(self, d, sink)
     }
     #[inline(always)]
     fn block_due(&self) -> bool {

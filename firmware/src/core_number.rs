@@ -15,6 +15,7 @@
 
 use visco_core::excitation::SineTable;
 use visco_core::fixed::Q32;
+use visco_core::schedule::SampleSink;
 use visco_core::{Controller, PixelRecord, Real, Record, StepOut, TapRecord};
 
 /// A number type the firmware's core can run in, with its loop edge.
@@ -40,8 +41,13 @@ pub trait LoopReal: SineTable {
     /// One loop sample (with the block estimator run in-line: the host's reference).
     fn step(c: &mut Controller<Self>, d: Self) -> StepOut<Self>;
     /// One loop sample without the block estimator (the firmware's loop interrupt, which
-    /// hands blocks to its estimator interrupt: `Controller::step_loop`).
-    fn step_loop(c: &mut Controller<Self>, d: Self) -> StepOut<Self>;
+    /// hands the estimating samples to `sink` and the block headers to its estimator
+    /// interrupt: `Controller::step_loop`).
+    fn step_loop(
+        c: &mut Controller<Self>,
+        d: Self,
+        sink: &mut impl SampleSink<Self>,
+    ) -> StepOut<Self>;
     /// The U applied now, in metres.
     fn u_m(c: &Controller<Self>) -> f32;
     /// U, X, Y after [`Self::step`], in metres (telemetry; the DACs take the codes).
@@ -77,8 +83,8 @@ impl LoopReal for f32 {
         c.step(d)
     }
     #[inline(always)]
-    fn step_loop(c: &mut Controller<f32>, d: f32) -> StepOut<f32> {
-        c.step_loop_m(d)
+    fn step_loop(c: &mut Controller<f32>, d: f32, sink: &mut impl SampleSink<f32>) -> StepOut<f32> {
+        c.step_loop_m(d, sink)
     }
     fn u_m(c: &Controller<f32>) -> f32 {
         c.u_m()
@@ -132,8 +138,8 @@ impl LoopReal for Q32 {
         c.step_internal(d)
     }
     #[inline(always)]
-    fn step_loop(c: &mut Controller<Q32>, d: Q32) -> StepOut<Q32> {
-        c.step_loop(d)
+    fn step_loop(c: &mut Controller<Q32>, d: Q32, sink: &mut impl SampleSink<Q32>) -> StepOut<Q32> {
+        c.step_loop(d, sink)
     }
     fn u_m(c: &Controller<Q32>) -> f32 {
         nm_to_m(c.u_internal())

@@ -1,13 +1,15 @@
 //! What the loop interrupt does for one sample, independent of the board:
-//! command → ADC → at a block close: the estimator's result adopted and the block handed to
-//! the estimator → `step` → DAC → lateral outputs → telemetry.
+//! command → ADC → at a block close: the estimator's result adopted and the block's header
+//! handed to the estimator → `step` (an estimating sample's `w` and `φ` queued for the
+//! estimator) → DAC → lateral outputs → telemetry.
 //!
 //! It never blocks, never allocates and has no panic path: a missing ADC sample is counted
 //! and the step skipped; a full telemetry queue is counted, and the main loop turns that
 //! count into a gap in the frame sequence numbers, so the host sees the loss too.
 
 use crate::core_glue::{
-    Block, BlockResult, CoreCommand, EstimatorTask, LoopCore, LoopReal, Mode, Number, RECORD_READY,
+    Block, BlockResult, CoreCommand, EstimatorTask, LoopCore, LoopReal, Mode, Number, Sample,
+    SampleSink, RECORD_READY,
 };
 use core::sync::atomic::{AtomicU32, AtomicU8, Ordering};
 use heapless::spsc::Consumer;
@@ -54,8 +56,12 @@ pub struct Counters {
     /// Estimator results not back when due (the estimator interrupt overran its N samples;
     /// the result is adopted at the next block close instead).
     pub estimator_late: AtomicU32,
-    /// Blocks lost to a full estimator queue.
+    /// Blocks lost to a full estimator queue (their queued samples are discarded by the task).
     pub blocks_dropped: AtomicU32,
+    /// Estimating samples lost to a full sample queue (the estimator interrupt more than
+    /// [`SAMPLE_DEPTH`] samples behind). The block they belong to is handed over without
+    /// information: the task discards its queued samples, applies its restarts, and θ̂ stays.
+    pub samples_dropped: AtomicU32,
 }
 
 impl Counters {
@@ -67,6 +73,7 @@ impl Counters {
             telemetry_dropped: AtomicU32::new(0),
             estimator_late: AtomicU32::new(0),
             blocks_dropped: AtomicU32::new(0),
+            samples_dropped: AtomicU32::new(0),
         }
     }
 }
@@ -77,32 +84,113 @@ fn bump(c: &AtomicU32) {
     c.store(c.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed);
 }
 
-/// Blocks (and results) the queues between the loop and the estimator interrupt hold: one is
-/// in flight by the schedule (`visco_core::schedule`); the rest is slack for an overrun.
+/// Block headers (and results) the queues between the loop and the estimator interrupt hold:
+/// one is in flight by the schedule (`visco_core::schedule`); the rest is slack for an overrun.
 pub const ESTIMATOR_DEPTH: usize = 4;
 
-/// The loop's end of the estimator task: blocks out, results back.
-pub trait EstimatorLink {
-    /// Hands over a block (and wakes the task); false when the queue is full.
+/// Estimating samples the loop → estimator sample queue holds (`heapless::spsc::Queue` of
+/// this + 1 slots, a power of two, so that its indices wrap with a mask): up to two blocks of
+/// the largest N (64) wait by the schedule (the block being handed over and the one the task
+/// works on), the rest is slack for an overrun.
+pub const SAMPLE_DEPTH: usize = 255;
+
+/// The loop's end of the estimator task: estimating samples (the [`SampleSink`]) and block
+/// headers out, results back.
+pub trait EstimatorLink: SampleSink<Number> {
+    /// Hands over a block header (and wakes the task); false when the queue is full.
     fn send(&mut self, b: Block) -> bool;
     /// The next result, if the task has one.
     fn receive(&mut self) -> Option<BlockResult>;
+    /// A new core (thread mode, both interrupts masked, the task's queues emptied): nothing
+    /// handed over is pending any more.
+    fn reset(&mut self) {}
 }
 
-/// The firmware's link: two `heapless::spsc` queues and the estimator interrupt pended.
+/// The firmware's link: three `heapless::spsc` queues and the estimator interrupt pended.
+///
+/// A full queue loses what did not fit, deterministically, and keeps the task's reading of
+/// the sample queue in step with the headers: a sample that does not fit is counted
+/// (`samples_dropped`), and the next header then hands over its block without information
+/// (its queued samples to be discarded); a header that does not fit is counted
+/// (`blocks_dropped`), and its queued samples are discarded with the next header.
 pub struct QueueLink {
-    /// Loop → estimator.
+    /// Loop → estimator, the block headers.
     pub blocks: Producer<'static, Block>,
+    /// Loop → estimator, the estimating samples.
+    pub samples: Producer<'static, Sample>,
     /// Estimator → loop.
     pub results: Consumer<'static, BlockResult>,
     /// Pends the estimator interrupt (the board's).
     pub pend: fn(),
+    /// Where lost samples are counted.
+    pub counters: &'static Counters,
+    /// Samples that did not fit the queue since the last header.
+    lost: u32,
+    /// Samples in the queue whose header did not fit.
+    carry: u32,
+}
+
+impl QueueLink {
+    /// The link over the queues' loop ends.
+    pub fn new(
+        blocks: Producer<'static, Block>,
+        samples: Producer<'static, Sample>,
+        results: Consumer<'static, BlockResult>,
+        pend: fn(),
+        counters: &'static Counters,
+    ) -> Self {
+        Self {
+            blocks,
+            samples,
+            results,
+            pend,
+            counters,
+            lost: 0,
+            carry: 0,
+        }
+    }
+
+    /// The header after losses: samples of its block that did not fit make the whole block
+    /// one to discard; samples of lost headers are discarded first.
+    #[inline(always)]
+    fn amend(&mut self, mut b: Block) -> Block {
+        if self.lost != 0 {
+            // What of the header's samples (the discarded ones and the block's) is queued.
+            b.skip = b.skip.wrapping_add(b.samples).wrapping_sub(self.lost);
+            b.samples = 0;
+        }
+        b.skip = b.skip.wrapping_add(self.carry);
+        self.lost = 0;
+        self.carry = 0;
+        b
+    }
+}
+
+impl SampleSink<Number> for QueueLink {
+    #[inline(always)]
+    fn push(&mut self, s: Sample) {
+        if self.samples.enqueue(s).is_err() {
+            self.lost = self.lost.wrapping_add(1);
+            bump(&self.counters.samples_dropped);
+        }
+    }
 }
 
 impl EstimatorLink for QueueLink {
     #[inline(always)]
     fn send(&mut self, b: Block) -> bool {
-        let ok = self.blocks.enqueue(b).is_ok();
+        let b = if (self.lost | self.carry) != 0 {
+            self.amend(b)
+        } else {
+            b
+        };
+        let ok = match self.blocks.enqueue(b) {
+            Ok(()) => true,
+            Err(b) => {
+                self.carry = self.carry.wrapping_add(b.skip.wrapping_add(b.samples));
+                false
+            }
+        };
         (self.pend)();
         ok
     }
@@ -110,30 +198,64 @@ impl EstimatorLink for QueueLink {
     fn receive(&mut self) -> Option<BlockResult> {
         self.results.dequeue()
     }
+    fn reset(&mut self) {
+        self.lost = 0;
+        self.carry = 0;
+    }
 }
 
 /// The estimator interrupt's state: the task and its ends of the queues.
 pub struct EstimatorState {
     /// The estimators.
     pub task: EstimatorTask,
-    /// Loop → estimator.
+    /// Loop → estimator, the block headers.
     pub blocks: Consumer<'static, Block>,
+    /// Loop → estimator, the estimating samples.
+    pub samples: Consumer<'static, Sample>,
     /// Estimator → loop.
     pub results: Producer<'static, BlockResult>,
 }
 
 impl EstimatorState {
-    /// The estimator interrupt's body: every waiting block, in order, each read in its queue
-    /// slot (no copy out) and the slot freed after.
+    /// The estimator interrupt's body: [`run_blocks`].
     #[inline(always)]
     pub fn run(&mut self) {
-        while let Some(b) = self.blocks.peek() {
-            let r = self.task.run(b);
-            // The value is not read again: this only frees the slot.
-            let _ = self.blocks.dequeue();
-            // Cannot be full: at most as many results as blocks, and the queues are alike.
-            let _ = self.results.enqueue(r);
+        run_blocks(
+            &mut self.task,
+            &mut self.blocks,
+            &mut self.samples,
+            &mut self.results,
+        );
+    }
+
+    /// Empties the loop → estimator queues (thread mode, both interrupts masked).
+    pub fn clear(&mut self) {
+        while self.blocks.dequeue().is_some() {}
+        while self.samples.dequeue().is_some() {}
+    }
+}
+
+/// Every waiting block, in order: the samples to discard, then the block's samples into the
+/// task's block sums, the block update, the result queued back. A header is queued after all
+/// its samples, so they are there (should one be missing, the block takes those there are).
+#[inline(always)]
+pub fn run_blocks(
+    task: &mut EstimatorTask,
+    blocks: &mut Consumer<'_, Block>,
+    samples: &mut Consumer<'_, Sample>,
+    results: &mut Producer<'_, BlockResult>,
+) {
+    while let Some(b) = blocks.peek() {
+        for _ in 0..b.skip {
+            if samples.dequeue().is_none() {
+                break;
+            }
         }
+        let r = task.run(b, core::iter::from_fn(|| samples.dequeue()));
+        // The value is not read again: this only frees the slot.
+        let _ = blocks.dequeue();
+        // Cannot be full: at most as many results as blocks, and the queues are alike.
+        let _ = results.enqueue(r);
     }
 }
 
@@ -271,7 +393,7 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
                 None => {}
             }
         }
-        let out = core.step(d);
+        let out = core.step(d, &mut self.estimator);
         let dac_word = self.u_out.write(out.u_code);
         // Lateral DACs are written only when the setpoint moves (once per pixel in SVE):
         // three SPI writes per sample would not fit 1 MHz.
@@ -324,6 +446,7 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
         self.core = core;
         self.in_flight = 0;
         while self.estimator.receive().is_some() {}
+        self.estimator.reset();
     }
 
     /// Restarts the sample index at 0 (a new source).
@@ -375,15 +498,93 @@ mod tests {
     }
 
     /// The estimator task run at once (as the host's `Controller::step` does).
-    struct Inline(EstimatorTask, Option<BlockResult>);
+    struct Inline(
+        EstimatorTask,
+        Option<BlockResult>,
+        std::collections::VecDeque<Sample>,
+    );
+    impl SampleSink<Number> for Inline {
+        fn push(&mut self, s: Sample) {
+            self.2.push_back(s);
+        }
+    }
     impl EstimatorLink for Inline {
         fn send(&mut self, b: Block) -> bool {
-            self.1 = Some(self.0.run(&b));
+            for _ in 0..b.skip {
+                self.2.pop_front();
+            }
+            let q = &mut self.2;
+            self.1 = Some(self.0.run(&b, core::iter::from_fn(|| q.pop_front())));
             true
         }
         fn receive(&mut self) -> Option<BlockResult> {
             self.1.take()
         }
+    }
+
+    /// A full sample queue and a full header queue lose what does not fit, count it, and keep
+    /// the task's reading of the samples in step with the headers.
+    #[test]
+    fn full_queues_lose_whole_blocks_and_stay_in_step() {
+        use visco_core::schedule::Target;
+        static COUNTERS: Counters = Counters::new();
+        fn leak<T, const N: usize>() -> &'static mut Queue<T, N> {
+            std::boxed::Box::leak(std::boxed::Box::new(Queue::new()))
+        }
+        let (btx, mut brx) = leak::<Block, { ESTIMATOR_DEPTH + 1 }>().split();
+        let (stx, mut srx) = leak::<Sample, { SAMPLE_DEPTH + 1 }>().split();
+        let (mut rtx, rrx) = leak::<BlockResult, { ESTIMATOR_DEPTH + 1 }>().split();
+        let mut link = QueueLink::new(btx, stx, rrx, || {}, &COUNTERS);
+        let mut task = build_core(&StagedConfig::new(), None).unwrap().task;
+        let theta0 = task.theta(Target::Dive3);
+        let header = |skip: u32, samples: u32| Block {
+            restart: None,
+            restart_watch: false,
+            epoch: 0,
+            target: Target::Dive3,
+            skip,
+            samples,
+        };
+        let v = |x: f64| <Number as visco_core::Real>::from_f64(x);
+        let x = Sample {
+            w: v(5.0),
+            phi: [v(1.0), v(2.0), v(1.0)],
+        };
+        // The estimator stalled for 300 samples: 45 do not fit; the block (3 to discard after
+        // a restart, 297 its own) is handed over without information.
+        for _ in 0..300 {
+            link.push(x);
+        }
+        assert_eq!(COUNTERS.samples_dropped.load(Ordering::Relaxed), 45);
+        assert!(link.send(header(3, 297)));
+        let b = *brx.peek().unwrap();
+        assert_eq!((b.skip, b.samples), (255, 0));
+        run_blocks(&mut task, &mut brx, &mut srx, &mut rtx);
+        let r = link.receive().unwrap();
+        assert_eq!((r.flags, r.theta), (0, theta0));
+        assert!(srx.dequeue().is_none());
+        // Headers: four fit; the fifth is lost, and its sample is discarded with the next.
+        for k in 0..6 {
+            link.push(x);
+            assert_eq!(link.send(header(0, 1)), k < ESTIMATOR_DEPTH);
+        }
+        let skips: std::vec::Vec<(u32, u32)> = std::iter::from_fn(|| brx.dequeue())
+            .map(|b| (b.skip, b.samples))
+            .collect();
+        assert_eq!(skips, [(0, 1); ESTIMATOR_DEPTH]);
+        link.push(x);
+        assert!(link.send(header(0, 1)));
+        assert_eq!(brx.peek().map(|b| (b.skip, b.samples)), Some((2, 1)));
+        // In step: four samples taken, then the two lost headers' and this block's.
+        for _ in 0..ESTIMATOR_DEPTH {
+            srx.dequeue();
+        }
+        let mut alone = task;
+        let want = alone.run(&header(0, 1), core::iter::once(x));
+        run_blocks(&mut task, &mut brx, &mut srx, &mut rtx);
+        assert!(srx.dequeue().is_none());
+        let got = link.receive().unwrap();
+        assert_eq!((got.theta, got.flags), (want.theta, want.flags));
     }
 
     #[test]
@@ -401,7 +602,7 @@ mod tests {
             Words::default(),
             Xy::default(),
             built.core,
-            Inline(built.task, None),
+            Inline(built.task, None, Default::default()),
             tp,
             &CMD,
             &COUNTERS,

@@ -106,8 +106,9 @@ pub struct EstimatorConfig {
     /// Upper bound of the aggregate damping ĉ (N·s/m); the lower bound is 0.
     pub c_max_ns_per_m: f64,
     /// Samples per estimator block, N (1 to 64; the name is the parameter's historical one).
-    /// N = 1: the estimator updates in the loop, on every sample. N > 1: the loop accumulates
-    /// the information of N samples and the estimator applies it in one exact block update
+    /// N = 1: the estimator updates in the loop, on every sample. N > 1: the loop hands over
+    /// the samples, the estimator task accumulates the information of N samples and applies it
+    /// in one exact block update
     /// per N samples, off the loop's fast path (see [`crate::schedule`]): no sample is
     /// skipped; β, R₀ and P₀ keep their meaning, Γ acts per block (`N·T·γ/α ≤ 1`).
     pub decimation: u32,

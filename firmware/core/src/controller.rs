@@ -30,13 +30,15 @@
 use crate::config::{Config, ConfigError, DiveRegressor, SveRegressor};
 use crate::contact::{ContactDetector, ContactParams, ContactState};
 use crate::depth::{DepthController, DepthParams};
-use crate::estimator::{BlockStats, Estimator};
+use crate::estimator::Estimator;
 use crate::excitation::{Excitation, ExcitationParams, SineTable, Tone};
 use crate::geometry::mean_sag;
 use crate::guard::{FaultBits, Guard, GuardParams};
 use crate::prefilter::HighPass;
 use crate::regressor::{Regressor, RegressorParams};
-use crate::schedule::{Block, BlockData, BlockResult, EstimatorTask, Target, TaskParams};
+use crate::schedule::{
+    Block, BlockResult, BlockSums, EstimatorTask, Sample, SampleSink, Target, TaskParams,
+};
 use crate::units;
 use core::num::{NonZeroU32, NonZeroU64};
 
@@ -326,8 +328,6 @@ struct DiveParams<T> {
     readout_samples: u32,
     ramp_samples: u32,
     regressor: DiveRegressor,
-    /// 1/T and α/T of the loop period: a block sample's weight T/m².
-    acc: (T, T),
     exc: ExcitationParams<T>,
     theta0: [T; 3],
     retract_speed: f64,
@@ -350,8 +350,6 @@ struct SveParams<T> {
     settle_samples: u32,
     depth_eff: T,
     depth: DepthParams<T>,
-    /// 1/T and α/T of the loop period.
-    acc: (T, T),
     highpass: T,
     exc: ExcitationParams<T>,
     theta0: [T; 3],
@@ -565,9 +563,11 @@ pub struct Controller<T> {
     /// θ̂ of the two- and three-parameter estimators as the loop uses them.
     theta2: [T; 2],
     theta3: [T; 3],
-    /// The block being accumulated and which estimator it is for.
-    stats2: BlockStats<T, 2>,
-    stats3: BlockStats<T, 3>,
+    /// Samples handed to the sink since the block began (or since the last restart in it).
+    block_n: u32,
+    /// Samples handed over before a restart and not yet accounted for by a block header: the
+    /// next header tells the task to discard them.
+    skip_n: u32,
     depth: DepthController<T>,
     dive: DiveState<T>,
     sve: SveState<T>,
@@ -586,6 +586,9 @@ pub struct Controller<T> {
     /// The estimators (per sample with blocks of 1; else the host's in-line estimator task,
     /// and on the firmware only a copy that gives the restarts' projected θ̂₀).
     task: EstimatorTask<T>,
+    /// The host's in-line task's sums of the block being accumulated ([`Self::step_internal`];
+    /// the firmware's estimator task forms them from the queued samples instead).
+    host_sums: BlockSums<T>,
     cfg: Config,
 }
 
@@ -708,7 +711,6 @@ impl<T: SineTable> Controller<T> {
                 readout_samples: samples(d.readout_s, fs),
                 ramp_samples: samples(d.excitation.ramp_s, fs),
                 regressor: d.regressor,
-                acc: (t(1.0 / period_us), t(d.estimator.alpha / period_us)),
                 exc: exc(&d.excitation),
                 theta0: theta0_dive,
                 retract_speed: cfg.approach.retract_speed_m_per_s / fs * nm,
@@ -732,7 +734,6 @@ impl<T: SineTable> Controller<T> {
                     u_min: t(cfg.limits.u_min_m * nm + exc_margin_sve),
                     u_max: t(cfg.limits.u_max_m * nm - exc_margin_sve),
                 },
-                acc: (t(1.0 / period_us), t(s.estimator.alpha / period_us)),
                 // The high-passes run at the loop rate (they feed every sample of a block).
                 highpass: HighPass::coefficient(s.highpass_hz, fs),
                 exc: exc(&s.excitation),
@@ -804,6 +805,9 @@ impl<T: SineTable> Controller<T> {
                 sve3: s.estimator.params(fs, u_span),
                 guard_dive: p.guard_dive,
                 guard_sve: p.guard_sve,
+                // 1/T and α/T of the loop period: a block sample's weight T/m².
+                acc_dive: (t(1.0 / period_us), t(d.estimator.alpha / period_us)),
+                acc_sve: (t(1.0 / period_us), t(s.estimator.alpha / period_us)),
             },
             p.dive.theta0,
         );
@@ -812,8 +816,9 @@ impl<T: SineTable> Controller<T> {
             task,
             theta2: th2,
             theta3: task.estimator3().theta(),
-            stats2: BlockStats::default(),
-            stats3: BlockStats::default(),
+            block_n: 0,
+            skip_n: 0,
+            host_sums: BlockSums::default(),
             target: Target::Dive3,
             pending_restart: None,
             pending_watch: false,
@@ -996,18 +1001,14 @@ impl<T: SineTable> Controller<T> {
         };
     }
 
-    /// Closes the block accumulated so far and hands it to `send` (the firmware: a queue's
-    /// `enqueue`, so that the block is written once, straight into the queue's slot); `None`
-    /// when the block holds no sample. Call when [`Self::block_due`], after [`Self::deliver`]
-    /// and before the step, as [`Self::step_internal`] does.
+    /// Closes the block handed over so far and gives its header to `send` (the firmware: a
+    /// queue's `enqueue`; the block's samples went to the sink of [`Self::step_loop`] already);
+    /// `None` when the block holds no sample. Call when [`Self::block_due`], after
+    /// [`Self::deliver`] and before the step, as [`Self::step_internal`] does.
     #[inline(always)]
     pub fn close_block<R>(&mut self, send: impl FnOnce(Block<T>) -> R) -> Option<R> {
         let b = self.closing_block()?;
-        // Cleared after `send`, so that the compiler can copy the sums straight from here
-        // into the queue's slot.
-        let r = send(b);
-        self.clear_stats();
-        Some(r)
+        Some(send(b))
     }
 
     /// Adopt an estimator task's result (call when [`Self::block_due`], before the step); a
@@ -1044,8 +1045,8 @@ impl<T: SineTable> Controller<T> {
 
     /// [`Self::step_loop`] with the deflection in metres (the firmware's f32 loop).
     #[inline(always)]
-    pub fn step_loop_m(&mut self, d_m: T) -> StepOut<T> {
-        self.step_loop(d_m * self.p.to_internal)
+    pub fn step_loop_m(&mut self, d_m: T, sink: &mut impl SampleSink<T>) -> StepOut<T> {
+        self.step_loop(d_m * self.p.to_internal, sink)
     }
 
     /// [`Self::step`] with the deflection in the core's internal length unit (nm): the entry
@@ -1063,18 +1064,30 @@ impl<T: SineTable> Controller<T> {
                 self.deliver(&r);
             }
             if let Some(b) = self.closing_block() {
-                self.clear_stats();
-                self.inflight = Some(self.task.run(&b));
+                // The sums of the block's samples, added as they came (`BlockSums::add`, the
+                // task's additions in the task's order).
+                self.inflight = Some(self.task.run_sums(&b, &self.host_sums));
+                self.host_sums.clear();
             }
         }
-        self.step_loop(d_nm)
+        let mut handed: Option<Sample<T>> = None;
+        let out = self.step_loop(d_nm, &mut |x| handed = Some(x));
+        // A sample handed over and then taken back by a restart in the same step (the
+        // restart moved it to `skip_n`) is not added: the task would discard it.
+        if let (Some(x), true) = (handed, self.block_n > 0) {
+            let acc = self.task.acc(self.target);
+            self.host_sums.add(self.target, acc, &x);
+        }
+        out
     }
 
-    /// The loop's part of [`Self::step_internal`]: everything but the block estimator, whose
-    /// blocks the caller takes with [`Self::close_block`] (when [`Self::block_due`], before
-    /// this step) and whose results come back by [`Self::deliver`].
+    /// The loop's part of [`Self::step_internal`]: everything but the block estimator. With
+    /// blocks (N > 1) every estimating sample's `w` and `φ` go to `sink`, in order; the
+    /// caller takes the block headers with [`Self::close_block`] (when [`Self::block_due`],
+    /// before this step) and gives the estimator task the samples they count; the results
+    /// come back by [`Self::deliver`]. With blocks of one the sink is not used.
     #[inline(always)]
-    pub fn step_loop(&mut self, d_nm: T) -> StepOut<T> {
+    pub fn step_loop(&mut self, d_nm: T, sink: &mut impl SampleSink<T>) -> StepOut<T> {
         let mut st = 0u32;
         // Input: out-of-range, non-finite and spiking readings are replaced by the last good
         // tip position, and the estimator waits (see `crate::guard`).
@@ -1096,8 +1109,8 @@ impl<T: SineTable> Controller<T> {
         self.reg.update(&self.p.reg, self.u, z);
 
         let u_next = match self.mode {
-            Some(Mode::Dive) => self.dive_step(d, z, input_ok, &mut st),
-            Some(Mode::Sve) => self.sve_step(d, z, input_ok, &mut st),
+            Some(Mode::Dive) => self.dive_step(d, z, input_ok, &mut st, sink),
+            Some(Mode::Sve) => self.sve_step(d, z, input_ok, &mut st, sink),
             None => self.u,
         };
         let (u_code, u, clamped) = self.p.u_dac.quantize(u_next);
@@ -1152,38 +1165,26 @@ impl<T: SineTable> Controller<T> {
         self.y = self.y_quantized.2;
     }
 
-    /// The block accumulated so far, with a pending restart, for the estimator task; `None`
-    /// when it holds no sample. Only the target estimator's sums travel; the other's are
-    /// empty (one estimator accumulates between restarts). [`Self::clear_stats`] follows.
+    /// The header of the block handed over so far, with a pending restart and the samples
+    /// to discard before it, for the estimator task; `None` when it holds no sample (a
+    /// restart and samples to discard then wait for the next block that does). One estimator
+    /// takes samples between restarts: the target's.
     #[inline(always)]
     fn closing_block(&mut self) -> Option<Block<T>> {
-        if self.stats2.samples == 0 && self.stats3.samples == 0 {
+        if self.block_n == 0 {
             return None;
         }
-        let data = match self.target {
-            Target::Dive2 => BlockData::Dive2(self.stats2),
-            Target::Sve2 => BlockData::Sve2(self.stats2),
-            Target::Dive3 => BlockData::Dive3(self.stats3),
-            Target::Sve3 => BlockData::Sve3(self.stats3),
-        };
-        Some(Block {
+        let b = Block {
             restart: self.pending_restart.take(),
             restart_watch: core::mem::take(&mut self.pending_watch),
             epoch: self.epoch,
-            data,
-        })
-    }
-
-    /// The sums start again: only what was added to (two- and three-parameter sums in one
-    /// block, the other's cleared as when both travelled, are the rare case).
-    #[inline(always)]
-    fn clear_stats(&mut self) {
-        if self.stats2.samples != 0 {
-            self.stats2.clear();
-        }
-        if self.stats3.samples != 0 {
-            self.stats3.clear();
-        }
+            target: self.target,
+            skip: self.skip_n,
+            samples: self.block_n,
+        };
+        self.skip_n = 0;
+        self.block_n = 0;
+        Some(b)
     }
 
     /// A new tap or scan: the estimator at θ̂₀ with P₀, the divergence watch restarted.
@@ -1195,8 +1196,11 @@ impl<T: SineTable> Controller<T> {
         self.theta2 = self.task.estimator2().theta();
         self.theta3 = self.task.estimator3().theta();
         self.target = target;
-        self.stats2.clear();
-        self.stats3.clear();
+        // The block's samples so far are discarded: the task skips them, the host's sums
+        // start again.
+        self.skip_n = self.skip_n.wrapping_add(self.block_n);
+        self.block_n = 0;
+        self.host_sums.clear();
         self.pending_restart = Some(theta0);
         self.pending_watch = true;
         self.epoch = self.epoch.wrapping_add(1);
@@ -1208,12 +1212,23 @@ impl<T: SineTable> Controller<T> {
         self.pending_watch = true;
     }
 
-    /// One estimator sample of two parameters: into the block, or the update itself with
-    /// blocks of one. Returns the status bits.
+    /// One estimator sample of two parameters: to the sink (the block's samples), or the
+    /// update itself with blocks of one. Returns the status bits.
     #[inline(always)]
-    fn estimate2(&mut self, target: Target, block: bool, acc: (T, T), w: T, phi: &[T; 2]) -> u32 {
+    fn estimate2(
+        &mut self,
+        target: Target,
+        block: bool,
+        sink: &mut impl SampleSink<T>,
+        w: T,
+        phi: &[T; 2],
+    ) -> u32 {
         if block {
-            self.stats2.add(acc.0, acc.1, w, phi);
+            sink.push(Sample {
+                w,
+                phi: [phi[0], phi[1], T::ZERO],
+            });
+            self.block_n = self.block_n.wrapping_add(1);
             status::ESTIMATING | self.adopted
         } else {
             let f = self.task.sample2(target, w, phi);
@@ -1224,9 +1239,17 @@ impl<T: SineTable> Controller<T> {
 
     /// [`Self::estimate2`] for three parameters.
     #[inline(always)]
-    fn estimate3(&mut self, target: Target, block: bool, acc: (T, T), w: T, phi: &[T; 3]) -> u32 {
+    fn estimate3(
+        &mut self,
+        target: Target,
+        block: bool,
+        sink: &mut impl SampleSink<T>,
+        w: T,
+        phi: &[T; 3],
+    ) -> u32 {
         if block {
-            self.stats3.add(acc.0, acc.1, w, phi);
+            sink.push(Sample { w, phi: *phi });
+            self.block_n = self.block_n.wrapping_add(1);
             status::ESTIMATING | self.adopted
         } else {
             let f = self.task.sample3(target, w, phi);
@@ -1250,7 +1273,14 @@ impl<T: SineTable> Controller<T> {
     // and restored 9 core and 8 double FPU registers and passed the state through memory
     // (~23 instructions per sample, `cargo xtask bench`).
     #[inline(always)]
-    fn dive_step(&mut self, d: T, z: T, input_ok: bool, st: &mut u32) -> T {
+    fn dive_step(
+        &mut self,
+        d: T,
+        z: T,
+        input_ok: bool,
+        st: &mut u32,
+        sink: &mut impl SampleSink<T>,
+    ) -> T {
         self.dive.t = self.dive.t.saturating_add(1);
         let t = self.dive.t;
         let mut u = self.dive.u_cmd;
@@ -1313,18 +1343,17 @@ impl<T: SineTable> Controller<T> {
                     let h = self.dive.h;
                     let w = self.reg.w(&self.p.reg);
                     let block = self.p.dec_dive > 1;
-                    let acc = self.p.dive.acc;
                     let (f, th) = match self.p.dive.regressor {
                         DiveRegressor::Paper => {
                             let phi = self.reg.phi_dive(h);
-                            let f = self.estimate2(Target::Dive2, block, acc, w, &phi);
+                            let f = self.estimate2(Target::Dive2, block, sink, w, &phi);
                             let th = self.theta2;
                             (f, [th[0], th[1], T::ZERO])
                         }
                         // Centred at the target tip position z₀ = h − indent (fixed for the tap).
                         DiveRegressor::Offset => {
                             let phi = self.reg.phi_sve(self.dive.z0);
-                            let f = self.estimate3(Target::Dive3, block, acc, w, &phi);
+                            let f = self.estimate3(Target::Dive3, block, sink, w, &phi);
                             (f, self.theta3)
                         }
                     };
@@ -1479,7 +1508,14 @@ impl<T: SineTable> Controller<T> {
 
     /// One SVE sample (inlined into `step_loop`, see `dive_step`).
     #[inline(always)]
-    fn sve_step(&mut self, d: T, z: T, input_ok: bool, st: &mut u32) -> T {
+    fn sve_step(
+        &mut self,
+        d: T,
+        z: T,
+        input_ok: bool,
+        st: &mut u32,
+        sink: &mut impl SampleSink<T>,
+    ) -> T {
         self.sve.t = self.sve.t.saturating_add(1);
         let t = self.sve.t;
         match self.phase {
@@ -1570,7 +1606,6 @@ impl<T: SineTable> Controller<T> {
                 let w = self.reg.w(&self.p.reg);
                 let phi = self.reg.phi_sve(self.sve.z0);
                 let block = self.p.dec_sve > 1;
-                let acc = self.p.sve.acc;
                 // θ̂₂ ≥ k_min > 0 by projection, so the divisions are safe.
                 let (th, h_hat, depth) = match self.p.sve.regressor {
                     SveRegressor::Decoupled => {
@@ -1582,7 +1617,7 @@ impl<T: SineTable> Controller<T> {
                             hp[2].update(self.p.sve.highpass, phi[1]),
                         ];
                         if input_ok {
-                            f = self.estimate2(Target::Sve2, block, acc, wh, &phi_h);
+                            f = self.estimate2(Target::Sve2, block, sink, wh, &phi_h);
                         }
                         let th = self.theta2;
                         let depth = force / th[1];
@@ -1590,7 +1625,7 @@ impl<T: SineTable> Controller<T> {
                     }
                     SveRegressor::Paper => {
                         if input_ok {
-                            f = self.estimate3(Target::Sve3, block, acc, w, &phi);
+                            f = self.estimate3(Target::Sve3, block, sink, w, &phi);
                         }
                         let th = self.theta3;
                         let h = self.sve.z0 + th[2] / th[1];

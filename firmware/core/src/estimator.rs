@@ -44,9 +44,10 @@
 //! three-parameter fit for ~10 ms.
 //!
 //! ## Block schedule
-//! With `Config`'s `estimator.decimation` = N > 1 the loop does not update per sample: it
-//! accumulates the block's information, `A = Σ ω·φφᵀ`, `b = Σ ω·φ·w` (and `Σ ω·w²`, `Σ ω` for
-//! the divergence watch) with the law's weight `ω = T/m²` per sample ([`BlockStats::add`]), and
+//! With `Config`'s `estimator.decimation` = N > 1 the loop does not update per sample: the
+//! block's information, `A = Σ ω·φφᵀ`, `b = Σ ω·φ·w` (and `Σ ω·w²`, `Σ ω` for the divergence
+//! watch), is accumulated with the law's weight `ω = T/m²` per sample ([`BlockStats::add`], by
+//! the estimator task from the samples the loop hands over, see [`crate::schedule`]), and
 //! [`Estimator::update_block`] applies the block in one step: forgetting `(1 + βNT)` once, then
 //! `P ← (Q⁻¹ + A)⁻¹` as N ≤ 3 rank-one Sherman–Morrison updates along the columns of A's
 //! `LDLᵀ` factors (the same stable step as per sample, P stays positive definite), and

@@ -1,11 +1,14 @@
 //! The estimator off the fast path: the loop hands blocks of samples to an estimator task.
 //!
 //! With a block of N > 1 samples (`estimator.decimation`), [`crate::Controller`]'s per-sample
-//! step only accumulates the block's information ([`BlockStats`]); every N samples it closes a
-//! [`Block`], which the estimator task ([`EstimatorTask::run`]: the block update of
-//! [`crate::estimator`] and the divergence watch) turns into a [`BlockResult`]. On the
-//! firmware the task is a lower-priority interrupt fed through a lock-free queue; on the host
-//! it runs in-line. Both follow the same schedule, so their results are bit-identical:
+//! step only hands each estimating sample's `w` and `φ` ([`Sample`]) to a [`SampleSink`];
+//! every N samples it closes a [`Block`] (a header: restarts, epoch, target, how many samples),
+//! which the estimator task ([`EstimatorTask::run`]: the block sums [`BlockStats`] over the
+//! samples, the block update of [`crate::estimator`] and the divergence watch) turns into a
+//! [`BlockResult`]. On the firmware the task is a lower-priority interrupt fed through two
+//! lock-free queues (samples, headers); on the host it runs in-line, its sums added as the
+//! samples come ([`BlockSums`]). Both follow the same schedule and add the same samples in the
+//! same order, so their results are bit-identical:
 //!
 //! * the block clock is the loop's sample counter: a block closes at the start of every N-th
 //!   sample (the first sample of the next block), holding the samples the estimator took in
@@ -20,7 +23,7 @@
 //! travel with the next block; results of blocks from before a restart are dropped (epoch).
 
 use crate::controller::status;
-use crate::estimator::{BlockStats, Estimator, EstimatorParams, UpdateInfo};
+use crate::estimator::{BlockInfo, BlockStats, Estimator, EstimatorParams, UpdateInfo};
 use crate::guard::{GuardParams, Watch};
 use crate::real::Real;
 
@@ -45,34 +48,36 @@ impl Target {
     }
 }
 
-/// The information of one block for the estimator it is for: only that estimator's sums travel
-/// (36 bytes for two parameters, 60 for three in f32), so that the hand-over is one short copy.
-#[derive(Clone, Copy, Debug)]
-pub enum BlockData<T> {
-    /// DIVE, the paper's regressor.
-    Dive2(BlockStats<T, 2>),
-    /// DIVE, the offset regressor.
-    Dive3(BlockStats<T, 3>),
-    /// SVE, decoupled.
-    Sve2(BlockStats<T, 2>),
-    /// SVE, the paper's regressor.
-    Sve3(BlockStats<T, 3>),
+/// One estimating sample, loop → estimator task: the regressor's output `w` and `φ` (`φ₃ = 0`
+/// for two parameters). The task forms the block's information from these
+/// ([`BlockStats::add`]), so that the loop only writes four numbers per sample.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample<T> {
+    /// w of `w = θᵀφ`.
+    pub w: T,
+    /// φ (three entries; the third is zero and unused for two parameters).
+    pub phi: [T; 3],
 }
 
-impl<T> BlockData<T> {
-    /// Which estimator the sums are for.
+/// Where the loop puts its estimating samples while blocks are in use (N > 1): on the
+/// firmware the producer end of a queue to the estimator task, on the host
+/// ([`crate::Controller::step_internal`]) the in-line task's block sums. Closures
+/// `FnMut(Sample<T>)` are sinks.
+pub trait SampleSink<T> {
+    /// One sample of the block being accumulated, in order.
+    fn push(&mut self, s: Sample<T>);
+}
+
+impl<T, F: FnMut(Sample<T>)> SampleSink<T> for F {
     #[inline(always)]
-    pub fn target(&self) -> Target {
-        match self {
-            BlockData::Dive2(_) => Target::Dive2,
-            BlockData::Dive3(_) => Target::Dive3,
-            BlockData::Sve2(_) => Target::Sve2,
-            BlockData::Sve3(_) => Target::Sve3,
-        }
+    fn push(&mut self, s: Sample<T>) {
+        self(s)
     }
 }
 
-/// One block, loop → estimator task.
+/// One block header, loop → estimator task. The block's samples travel apart, in order,
+/// through a [`SampleSink`]: the header says how many of the samples waiting belong to this
+/// block, after how many to discard.
 #[derive(Clone, Copy, Debug)]
 pub struct Block<T> {
     /// Restart the estimator at this θ̂₀ with P₀ before the block (a new tap or scan).
@@ -81,15 +86,71 @@ pub struct Block<T> {
     pub restart_watch: bool,
     /// The loop's estimation epoch when the block was closed (bumped by every restart).
     pub epoch: u32,
-    /// The block's information, and which estimator it is for.
-    pub data: BlockData<T>,
+    /// Which estimator the block is for.
+    pub target: Target,
+    /// Samples handed over before this block's own that are to be discarded: taken before a
+    /// restart (the block sums started again there), or, on the firmware, queued for a block
+    /// that was lost.
+    pub skip: u32,
+    /// The block's samples, following the discarded ones. Zero only on the firmware, for a
+    /// block whose samples did not all fit the queue: its restarts still apply, θ̂ does not
+    /// move.
+    pub samples: u32,
 }
 
 impl<T> Block<T> {
     /// Which estimator the block is for.
     #[inline(always)]
     pub fn target(&self) -> Target {
-        self.data.target()
+        self.target
+    }
+}
+
+/// A block's sums for either estimator: what [`EstimatorTask::run`] forms from the samples,
+/// and what the host's [`crate::Controller::step_internal`] adds its samples to as they come.
+#[derive(Clone, Copy, Debug)]
+pub struct BlockSums<T> {
+    /// Two parameters.
+    pub s2: BlockStats<T, 2>,
+    /// Three parameters.
+    pub s3: BlockStats<T, 3>,
+}
+
+impl<T: Real> Default for BlockSums<T> {
+    fn default() -> Self {
+        Self {
+            s2: BlockStats::default(),
+            s3: BlockStats::default(),
+        }
+    }
+}
+
+impl<T: Real> Default for Sample<T> {
+    fn default() -> Self {
+        Self {
+            w: T::ZERO,
+            phi: [T::ZERO; 3],
+        }
+    }
+}
+
+impl<T: Real> BlockSums<T> {
+    /// One sample of a block for `target`, with the task's constants `acc`
+    /// ([`EstimatorTask::acc`]).
+    #[inline(always)]
+    pub fn add(&mut self, target: Target, acc: (T, T), x: &Sample<T>) {
+        if target.two() {
+            self.s2.add(acc.0, acc.1, x.w, &[x.phi[0], x.phi[1]]);
+        } else {
+            self.s3.add(acc.0, acc.1, x.w, &x.phi);
+        }
+    }
+
+    /// Empty again.
+    #[inline(always)]
+    pub fn clear(&mut self) {
+        self.s2.clear();
+        self.s3.clear();
     }
 }
 
@@ -121,6 +182,10 @@ pub struct TaskParams<T> {
     pub guard_dive: GuardParams<T>,
     /// SVE divergence watch.
     pub guard_sve: GuardParams<T>,
+    /// DIVE: 1/T and α/T of the loop period, a block sample's weight T/m² ([`BlockStats::add`]).
+    pub acc_dive: (T, T),
+    /// SVE: 1/T and α/T.
+    pub acc_sve: (T, T),
 }
 
 /// The estimators and their divergence watch: what the lower-priority task owns.
@@ -223,23 +288,108 @@ impl<T: Real> EstimatorTask<T> {
         status::EST_DIVERGED
     }
 
-    /// One block: restarts first, then the block update and the divergence watch.
-    pub fn run(&mut self, b: &Block<T>) -> BlockResult<T> {
-        let target = b.target();
+    /// 1/T and α/T of the target's mode: [`BlockStats::add`]'s constants.
+    #[inline(always)]
+    pub fn acc(&self, target: Target) -> (T, T) {
+        match target {
+            Target::Dive2 | Target::Dive3 => self.p.acc_dive,
+            Target::Sve2 | Target::Sve3 => self.p.acc_sve,
+        }
+    }
+
+    /// One block: the block sums over its samples (`samples` yields them in order; at most
+    /// `b.samples` are taken), then the restarts, the block update and the divergence watch.
+    /// The sums are formed here, in registers, sample by sample as the loop handed them over:
+    /// the same additions in the same order as [`BlockSums::add`] on the host.
+    #[inline(always)]
+    pub fn run(
+        &mut self,
+        b: &Block<T>,
+        samples: impl Iterator<Item = Sample<T>>,
+    ) -> BlockResult<T> {
+        let target = b.target;
+        let (ip, ai) = self.acc(target);
+        let n = b.samples as usize;
+        let bi = if target.two() {
+            let mut s = BlockStats::<T, 2>::default();
+            for x in samples.take(n) {
+                s.add(ip, ai, x.w, &[x.phi[0], x.phi[1]]);
+            }
+            // A copy for the update, which takes the sums by reference: the loop's own stay
+            // in registers (passed by reference themselves, they are kept in memory and
+            // loaded and stored every sample).
+            let s = core::hint::black_box(s);
+            self.restarts(b);
+            (b.samples != 0).then(|| self.update2(target, &s))
+        } else {
+            let mut s = BlockStats::<T, 3>::default();
+            for x in samples.take(n) {
+                s.add(ip, ai, x.w, &x.phi);
+            }
+            let s = core::hint::black_box(s);
+            self.restarts(b);
+            (b.samples != 0).then(|| self.update3(target, &s))
+        };
+        self.finish(b, bi)
+    }
+
+    /// One block whose sums are formed already ([`BlockSums`], the host's in-line task):
+    /// restarts first, then the block update and the divergence watch.
+    #[inline(always)]
+    pub fn run_sums(&mut self, b: &Block<T>, sums: &BlockSums<T>) -> BlockResult<T> {
+        let target = b.target;
+        self.restarts(b);
+        let bi = if b.samples == 0 {
+            None
+        } else if target.two() {
+            Some(self.update2(target, &sums.s2))
+        } else {
+            Some(self.update3(target, &sums.s3))
+        };
+        self.finish(b, bi)
+    }
+
+    #[inline(always)]
+    fn update2(&mut self, target: Target, s: &BlockStats<T, 2>) -> BlockInfo<T> {
+        let p = if target == Target::Sve2 {
+            &self.p.sve2
+        } else {
+            &self.p.dive2
+        };
+        self.est2.update_block(p, s)
+    }
+
+    #[inline(always)]
+    fn update3(&mut self, target: Target, s: &BlockStats<T, 3>) -> BlockInfo<T> {
+        let p = if target == Target::Sve3 {
+            &self.p.sve3
+        } else {
+            &self.p.dive3
+        };
+        self.est3.update_block(p, s)
+    }
+
+    /// The block's restarts (before its update).
+    #[inline(always)]
+    fn restarts(&mut self, b: &Block<T>) {
         if let Some(th) = b.restart {
-            self.restart(target, th);
+            self.restart(b.target, th);
         }
         if b.restart_watch {
             self.watch.restart();
         }
-        let bi = match &b.data {
-            BlockData::Dive2(s) => self.est2.update_block(&self.p.dive2, s),
-            BlockData::Sve2(s) => self.est2.update_block(&self.p.sve2, s),
-            BlockData::Dive3(s) => self.est3.update_block(&self.p.dive3, s),
-            BlockData::Sve3(s) => self.est3.update_block(&self.p.sve3, s),
-        };
-        let mut flags = est_flags(bi.info);
-        flags |= self.watch(target, bi.info, bi.e_ms, bi.w_ms, true);
+    }
+
+    /// After the block update `bi` (`None`: a block without samples, which only restarts:
+    /// θ̂ stays, no flags), the divergence watch and the result.
+    #[inline(always)]
+    fn finish(&mut self, b: &Block<T>, bi: Option<BlockInfo<T>>) -> BlockResult<T> {
+        let target = b.target;
+        let mut flags = 0;
+        if let Some(bi) = bi {
+            flags = est_flags(bi.info);
+            flags |= self.watch(target, bi.info, bi.e_ms, bi.w_ms, true);
+        }
         BlockResult {
             target,
             theta: self.theta(target),

@@ -22,7 +22,9 @@ use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::{ErrorType as PinErrorType, OutputPin};
 use embedded_hal::spi::{ErrorType as SpiErrorType, SpiBus};
 use heapless::spsc::{Consumer, Producer, Queue};
-use visco_firmware::core_glue::{ActiveCore, CoreCommand, LoopCore, LoopReal, Mode, Number};
+use visco_firmware::core_glue::{
+    ActiveCore, Block, BlockResult, CoreCommand, LoopCore, LoopReal, Mode, Number, Sample,
+};
 use visco_firmware::drivers::ad4000::{self, part, Ad4000, CFG_TURBO};
 use visco_firmware::drivers::ad5541::Ad5541;
 use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, QueueLink};
@@ -811,7 +813,8 @@ fn systick_now() -> u32 {
 
 /// SysTick ticks of `step` over `table` on a copy of `core` (the interrupt's ADC conversion
 /// in front of each call), of the same loop without the call, and of the estimator task's
-/// block updates over the same input (with the number of blocks); interrupts masked.
+/// work over the same input — its samples taken from the sample queue into the block sums,
+/// and the block updates — (with the number of blocks); interrupts masked.
 fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32, u32, u32) {
     let mut copy = core.clone();
     let mut copy2 = core.clone();
@@ -836,7 +839,10 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32,
                     core::hint::black_box(&b);
                 });
             }
-            let o = LoopCore::step(core, core::hint::black_box(d));
+            let mut sink = |x: Sample| {
+                core::hint::black_box(x);
+            };
+            let o = LoopCore::step(core, core::hint::black_box(d), &mut sink);
             core::hint::black_box((o.u_code, o.x_code, o.y_code, o.status));
         }
         let t1 = systick_now();
@@ -846,29 +852,45 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32,
         }
         let t2 = systick_now();
         // The estimator task's share, timed where it runs: `step` again on another copy,
-        // with the result adopted at each block close, and every closed block run through a
-        // copy of the task between two SysTick reads (their own cost, one load each, is part
-        // of the figure). Timing the task itself, rather than the difference of two loops
-        // of `step` that the compiler lays out differently (±10 per sample), puts the block
-        // hand-over on the loop's side, where the firmware runs it.
+        // its samples and block headers through queues like the firmware's, the result
+        // adopted at each block close, and at every close the estimator interrupt's body
+        // (`loop_body::run_blocks`: the block's samples out of the queue into the block sums,
+        // the block update, the result queued) on a copy of the task between two SysTick
+        // reads (their own cost, one load each, is part of the figure). Timing the task
+        // itself, rather than the difference of two loops of `step` that the compiler lays
+        // out differently (±10 per sample), puts the hand-over (samples and header queued)
+        // on the loop's side, where the firmware runs it.
+        let mut samples: Queue<Sample, { loop_body::SAMPLE_DEPTH + 1 }> = Queue::new();
+        let mut headers: Queue<Block, { loop_body::ESTIMATOR_DEPTH + 1 }> = Queue::new();
+        let mut results: Queue<BlockResult, { loop_body::ESTIMATOR_DEPTH + 1 }> = Queue::new();
+        let (mut s_tx, mut s_rx) = samples.split();
+        let (mut h_tx, mut h_rx) = headers.split();
+        let (mut r_tx, mut r_rx) = results.split();
         let mut blocks = 0u32;
         let mut est = 0u32;
-        let mut result = None;
         for &c in table {
             let d = scale.to_input(c as i32);
             let core = core::hint::black_box(&mut copy2);
             if LoopCore::block_due(core) {
-                if let Some(r) = result.take() {
+                while let Some(r) = r_rx.dequeue() {
                     LoopCore::deliver(core, &r);
                 }
-                LoopCore::close_block(core, |b| {
+                if LoopCore::close_block(core, |b| h_tx.enqueue(b).is_ok()) == Some(true) {
                     let t3 = systick_now();
-                    result = Some(core::hint::black_box(&mut task).run(&b));
+                    loop_body::run_blocks(
+                        core::hint::black_box(&mut task),
+                        &mut h_rx,
+                        &mut s_rx,
+                        &mut r_tx,
+                    );
                     est = est.wrapping_add(t3.wrapping_sub(systick_now()) & 0x00FF_FFFF);
                     blocks += 1;
-                });
+                }
             }
-            let o = LoopCore::step(core, core::hint::black_box(d));
+            let mut sink = |x: Sample| {
+                let _ = s_tx.enqueue(x);
+            };
+            let o = LoopCore::step(core, core::hint::black_box(d), &mut sink);
             core::hint::black_box((o.u_code, o.x_code, o.y_code, o.status));
         }
         let step = t0.wrapping_sub(t1) & 0x00FF_FFFF;
