@@ -134,16 +134,20 @@ impl<T: Real> Guard<T> {
     ) -> Input<T> {
         let z = u - d;
         // In range (false for NaN), and not a jump of the tip.
-        let in_range = d > -d_max && d < d_max;
+        let in_range = d.abs_lt(d_max);
         self.predicted += self.velocity;
         let jump = z - self.predicted;
-        let plausible = self.known < 2 || (jump < self.reach && jump > -self.reach);
+        let plausible = self.known < 2 || jump.abs_lt(self.reach);
         if in_range && plausible {
             // The mean velocity since the last good sample (over the bad ones in between).
-            self.velocity = if self.known > 0 {
-                (z - self.z_good) / self.elapsed
-            } else {
+            self.velocity = if self.known == 0 {
                 T::ZERO
+            } else if !T::CHEAP_DIV && self.elapsed == T::ONE {
+                // The usual case, a good sample after a good one: x/1 = x exactly, without
+                // the fixed-point long division.
+                z - self.z_good
+            } else {
+                (z - self.z_good) / self.elapsed
             };
             self.elapsed = T::ONE;
             self.z_good = z;

@@ -28,6 +28,10 @@ pub trait Real:
     const ZERO: Self;
     /// 1
     const ONE: Self;
+    /// A division costs about as much as a product (one FPU instruction), so that skipping an
+    /// exact one (`x / 1 = x`) by a test would cost more than it saves; false for the fixed-point
+    /// types, whose quotient is a long division of some 200 instructions on the Cortex-M3.
+    const CHEAP_DIV: bool = false;
     /// Conversion from a configuration value (done once, outside the loop).
     fn from_f64(x: f64) -> Self;
     /// Conversion for reporting.
@@ -48,6 +52,13 @@ pub trait Real:
             self
         }
     }
+    /// `−b < self < b`, i.e. `|self| < b` (false for NaN). The floats take `|self|` in one
+    /// instruction (the sign of a zero does not change a comparison, so the result is the
+    /// same); the default compares twice.
+    #[inline(always)]
+    fn abs_lt(self, b: Self) -> bool {
+        self < b && self > -b
+    }
     /// The value limited to `[lo, hi]`; a NaN becomes `lo`.
     #[inline(always)]
     fn clamp_to(self, lo: Self, hi: Self) -> Self {
@@ -64,6 +75,11 @@ pub trait Real:
 impl Real for f32 {
     const ZERO: Self = 0.0;
     const ONE: Self = 1.0;
+    const CHEAP_DIV: bool = true;
+    #[inline(always)]
+    fn abs_lt(self, b: Self) -> bool {
+        f32::abs(self) < b
+    }
     #[inline(always)]
     fn from_f64(x: f64) -> Self {
         x as f32
@@ -92,6 +108,11 @@ impl Real for f32 {
 impl Real for f64 {
     const ZERO: Self = 0.0;
     const ONE: Self = 1.0;
+    const CHEAP_DIV: bool = true;
+    #[inline(always)]
+    fn abs_lt(self, b: Self) -> bool {
+        f64::abs(self) < b
+    }
     #[inline(always)]
     fn from_f64(x: f64) -> Self {
         x
