@@ -43,15 +43,19 @@ const QUOTED: &[Quoted] = &[
         Finding { effect: "adhesion", params: &[("pull_off_force_n", 1e-9, "6.5"), ("reach_m", 1e-6, "3.7"), ("on_unloading_only", 1.0, "1")], rms: ("108", "38"), hold: None },
         Finding { effect: "stress-relaxation", params: &[("arm1_relaxation_time_s", 1.0, "0.65"), ("arm1_stiffness_ratio", 1.0, "0.15")], rms: ("14.0", "12.9"), hold: Some(("6.85", "1.27")) },
     ] },
-    Quoted { file: SPOT3, curve: 0, rms: ("1.42", "1.40"), findings: &[
+    Quoted { file: SPOT3, curve: 0, rms: ("1.42", "0.92"), findings: &[
         Finding { effect: "plastic-deformation", params: &[("plastic_fraction", 0.01, "24")], rms: ("2.12", "1.90"), hold: None },
+        Finding { effect: "adhesion", params: &[("pull_off_force_n", 1e-12, "93"), ("on_unloading_only", 1.0, "1")], rms: ("1.61", "1.21"), hold: None },
     ] },
-    Quoted { file: MAP, curve: 0, rms: ("2.47", "2.40"), findings: &[
+    Quoted { file: MAP, curve: 0, rms: ("2.47", "1.91"), findings: &[
         Finding { effect: "plastic-deformation", params: &[("plastic_fraction", 0.01, "43")], rms: ("5.97", "5.01"), hold: None },
+        Finding { effect: "thermal-drift", params: &[("rate_m_per_s", 1e-9, "0.42")], rms: ("2.49", "2.03"), hold: None },
         Finding { effect: "surface-attraction", params: &[("force_at_contact_n", 1e-12, "63"), ("decay_length_m", 1e-9, "344")], rms: ("7.04", "6.85"), hold: None },
     ] },
-    Quoted { file: MAP, curve: 1, rms: ("2.06", "2.04"), findings: &[
-        Finding { effect: "plastic-deformation", params: &[("plastic_fraction", 0.01, "39")], rms: ("3.77", "3.43"), hold: None },
+    Quoted { file: MAP, curve: 1, rms: ("2.06", "1.41"), findings: &[
+        Finding { effect: "adhesion", params: &[("pull_off_force_n", 1e-12, "53"), ("on_unloading_only", 1.0, "1")], rms: ("3.70", "2.13"), hold: None },
+        Finding { effect: "plastic-deformation", params: &[("plastic_fraction", 0.01, "31")], rms: ("3.14", "2.52"), hold: None },
+        Finding { effect: "thermal-drift", params: &[("rate_m_per_s", 1e-9, "0.33")], rms: ("1.88", "1.45"), hold: None },
     ] },
     Quoted { file: MAP, curve: 2, rms: ("3.63", "1.59"), findings: &[
         Finding { effect: "adhesion", params: &[("pull_off_force_n", 1e-12, "81"), ("on_unloading_only", 1.0, "1")], rms: ("3.68", "1.84"), hold: None },
