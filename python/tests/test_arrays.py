@@ -179,12 +179,19 @@ def test_ctrl_c_interrupts_diagnose(real):
 
     rec = visco.read(real / SR, **import_options(SR))
     steps = []
+    timers = []
     # Interrupt once the search has started (the first progress line), from another thread,
     # as a terminal's Ctrl-C arrives.
     def progress(step):
         steps.append(step)
         if len(steps) == 1:
-            threading.Timer(0.05, _thread.interrupt_main).start()
+            t = threading.Timer(0.05, _thread.interrupt_main)
+            t.start()
+            timers.append(t)
+        elif timers:
+            # On a loaded machine the timer's thread may not have run yet (a CI run once
+            # finished the diagnosis first): wait for it, so the interrupt is pending here.
+            timers[0].join()
 
     with pytest.raises(KeyboardInterrupt):
         visco.diagnose(rec, progress=progress)
