@@ -99,6 +99,9 @@ pub struct LmOptions {
     pub tolerance: f64,
     /// Finite-difference step in the scaled coordinate.
     pub step: f64,
+    /// `(n, bar)`: stop after `n` iterations when the SSR is still at or above `bar` (a start
+    /// that has not beaten what the caller already has is not worth the rest).
+    pub give_up: Option<(usize, f64)>,
 }
 
 impl Default for LmOptions {
@@ -107,6 +110,7 @@ impl Default for LmOptions {
             max_iterations: 30,
             tolerance: 1e-7,
             step: 1e-4,
+            give_up: None,
         }
     }
 }
@@ -238,6 +242,12 @@ pub fn levenberg_marquardt(
             break;
         }
         if converged {
+            break;
+        }
+        if opts
+            .give_up
+            .is_some_and(|(n, bar)| iterations >= n && cost >= bar)
+        {
             break;
         }
     }
@@ -436,6 +446,47 @@ mod tests {
                 p.value
             );
         }
+    }
+
+    /// `give_up` stops a fit that has not reached its bar after the given iterations, and
+    /// leaves one that reaches it on the same path as without the option.
+    #[test]
+    fn gives_up_only_above_the_bar() {
+        let t: Vec<f64> = (0..200).map(|i| i as f64 * 0.01).collect();
+        let y: Vec<f64> = t.iter().map(|&x| 2.5 * (-3.0 * x).exp() - 0.4).collect();
+        let fit = |give_up: Option<(usize, f64)>| {
+            let mut ps = vec![
+                Param::linear("a", 1.0, -10.0, 10.0, 1.0),
+                Param::logarithmic("k", 0.5, 1e-3, 1e3),
+                Param::linear("c", 0.0, -1.0, 1.0, 0.1),
+            ];
+            let opts = LmOptions {
+                give_up,
+                ..LmOptions::default()
+            };
+            let res = levenberg_marquardt(&mut ps, &opts, |v| {
+                Some(
+                    t.iter()
+                        .zip(&y)
+                        .map(|(&x, &yy)| yy - (v[0] * (-v[1] * x).exp() + v[2]))
+                        .collect(),
+                )
+            });
+            (res, ps[1].value)
+        };
+        let (free, k_free) = fit(None);
+        assert!(free.iterations > 2, "{free:?}");
+        // A bar no fit reaches: two iterations, then it stops, well short of the optimum.
+        let (stopped, _) = fit(Some((2, 0.0)));
+        assert_eq!(stopped.iterations, 2, "{stopped:?}");
+        assert!(
+            stopped.ssr > 1e3 * free.ssr.max(1e-30),
+            "{stopped:?} vs {free:?}"
+        );
+        // A bar every iterate is below: bit for bit the free fit.
+        let (kept, k_kept) = fit(Some((2, f64::INFINITY)));
+        assert_eq!(kept.evaluations, free.evaluations);
+        assert_eq!(k_kept.to_bits(), k_free.to_bits());
     }
 
     /// A bound holds: the best value outside it ends on the bound.
