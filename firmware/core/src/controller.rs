@@ -1119,7 +1119,7 @@ impl<T: SineTable> Controller<T> {
         }
         self.u = u;
         self.u_code = u_code;
-        if self.exc.envelope() > T::ZERO {
+        if self.exc.sounding() {
             st |= status::EXCITING;
         }
         if self.record.is_some() {
