@@ -869,6 +869,18 @@ impl<T: SineTable> Controller<T> {
         self.u * self.p.to_m
     }
 
+    /// U, X and Y of the last step in metres: [`StepOut`]'s `u_m`, `x_m`, `y_m`, the same
+    /// products. (The firmware's telemetry takes them here, only when it sends them: read from
+    /// the step's output, their loads were hoisted into every sample.)
+    #[inline(always)]
+    pub fn outputs_m(&self) -> [T; 3] {
+        [
+            self.u * self.p.to_m,
+            self.x * self.p.to_m,
+            self.y * self.p.to_m,
+        ]
+    }
+
     /// Carry out a command from the host.
     pub fn command(&mut self, cmd: Command) {
         match cmd {
