@@ -490,6 +490,9 @@ struct DiveState<T> {
     tap: u32,
     t: u32,
     dwell_end: u32,
+    /// `dwell_end − ramp_samples` (saturated): where the excitation ramps out, one comparison
+    /// per sample instead of a sum and two.
+    ramp_from: u32,
     estimate_from: u32,
     readout_from: u32,
     u_cmd: T,
@@ -758,6 +761,7 @@ impl<T: SineTable> Controller<T> {
             tap: 0,
             t: 0,
             dwell_end: 0,
+            ramp_from: 0,
             estimate_from: 0,
             readout_from: 0,
             u_cmd: u,
@@ -1351,7 +1355,7 @@ impl<T: SineTable> Controller<T> {
                     self.dive.u_cmd = u;
                     return u + self.exc.next(&self.p.dive.exc);
                 }
-                if t >= self.dive.estimate_from && input_ok {
+                if input_ok && t >= self.dive.estimate_from {
                     let h = self.dive.h;
                     let w = self.reg.w(&self.p.reg);
                     let block = self.p.dec_dive > 1;
@@ -1384,11 +1388,12 @@ impl<T: SineTable> Controller<T> {
                         *st |= status::READOUT;
                     }
                 }
-                if t + self.p.dive.ramp_samples >= self.dive.dwell_end {
+                // t + ramp ≥ dwell_end; dwell_end ≥ ramp_from, so the end is inside.
+                if t >= self.dive.ramp_from {
                     self.exc.set_on(false);
-                }
-                if t >= self.dive.dwell_end {
-                    self.finish_tap(true);
+                    if t >= self.dive.dwell_end {
+                        self.finish_tap(true);
+                    }
                 }
             }
             Phase::Retract => {
@@ -1446,6 +1451,7 @@ impl<T: SineTable> Controller<T> {
             self.dive.flags |= status::SHORT_DWELL;
         }
         self.dive.dwell_end = end.max(estimate_from + p.ramp_samples + p.readout_samples);
+        self.dive.ramp_from = self.dive.dwell_end.saturating_sub(p.ramp_samples);
         self.dive.estimate_from = estimate_from;
         self.dive.readout_from = readout_from.max(estimate_from);
         self.dive.acc.clear();
