@@ -545,6 +545,9 @@ struct SveState<T> {
 pub struct Controller<T> {
     mode: Option<Mode>,
     phase: Phase,
+    /// `set_x_same_y` would leave y as it is: y and its code are `y_quantized`'s value and
+    /// code, and quantising that value gives it back. Cleared where y is set (`set_xy`).
+    y_settled: bool,
     u: T,
     u_code: i32,
     x: T,
@@ -835,6 +838,7 @@ impl<T: SineTable> Controller<T> {
             mode: None,
             now,
             phase: Phase::Idle,
+            y_settled: false,
             u,
             u_code,
             x,
@@ -1163,6 +1167,7 @@ impl<T: SineTable> Controller<T> {
         self.x_code = xc;
         self.y = yv;
         self.y_code = yc;
+        self.y_settled = false;
     }
 
     /// `set_xy(x, self.y)`, the scan's case, with the y quantisation remembered: it is a
@@ -1172,6 +1177,11 @@ impl<T: SineTable> Controller<T> {
         let (xc, xv, _) = self.p.xy_dac.quantize(x);
         self.x = xv;
         self.x_code = xc;
+        if self.y_settled {
+            // The lines below would store the y and code there are: skipped (one byte
+            // tested instead of two loads, a comparison and four copies per sample).
+            return;
+        }
         let y = self.y;
         if y != self.y_quantized.0 {
             let (yc, yv, _) = self.p.xy_dac.quantize(y);
@@ -1179,6 +1189,10 @@ impl<T: SineTable> Controller<T> {
         }
         self.y_code = self.y_quantized.1;
         self.y = self.y_quantized.2;
+        // A fixed point when the value quantises to itself (always, but for grids finer
+        // than the number type; never for NaN): until y is set again, the next call's test
+        // is true and it stores these same two.
+        self.y_settled = self.y == self.y_quantized.0;
     }
 
     /// The header of the block handed over so far, with a pending restart and the samples
