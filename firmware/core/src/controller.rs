@@ -523,6 +523,10 @@ struct SveState<T> {
     next_boundary: u32,
     acc: Accumulator<T>,
     x_acc: T,
+    /// The pass's ramp `x = x_from + x_span·f`, set when it begins: x0 and x1 − x0 forward,
+    /// x1 and x0 − x1 backward (the same operands as picking them by direction every sample).
+    x_from: T,
+    x_span: T,
     /// The surface was lost (or the force limit hit): re-approaching while the scan goes on.
     lost: bool,
     reapproach_from: T,
@@ -793,6 +797,8 @@ impl<T: SineTable> Controller<T> {
             next_boundary: 0,
             acc: Accumulator::default(),
             x_acc: T::ZERO,
+            x_from: T::ZERO,
+            x_span: T::ZERO,
             lost: false,
             force_slow: T::ZERO,
             left: false,
@@ -1750,11 +1756,7 @@ impl<T: SineTable> Controller<T> {
             Phase::Forward | Phase::Backward => {
                 let forward = self.phase == Phase::Forward;
                 let f = T::from_i32(t as i32) * self.p.sve.inv_half;
-                let x = if forward {
-                    self.p.sve.x0 + (self.p.sve.x1 - self.p.sve.x0) * f
-                } else {
-                    self.p.sve.x1 + (self.p.sve.x0 - self.p.sve.x1) * f
-                };
+                let x = self.sve.x_from + self.sve.x_span * f;
                 self.set_x_same_y(x);
                 if self.p.dec_sve > 1 {
                     self.sve.acc.add_held::<2>(v, flags);
@@ -1809,6 +1811,11 @@ impl<T: SineTable> Controller<T> {
         self.sve.next_boundary = (p.half_samples as u64 / NonZeroU64::from(p.pixels)) as u32;
         self.sve.acc.clear();
         self.sve.x_acc = T::ZERO;
+        (self.sve.x_from, self.sve.x_span) = if forward {
+            (p.x0, p.x1 - p.x0)
+        } else {
+            (p.x1, p.x0 - p.x1)
+        };
         self.phase = if forward {
             Phase::Forward
         } else {
