@@ -389,8 +389,9 @@ struct Params<T> {
 /// The running mode's per-sample constants (see [`Controller::set_mode`]).
 #[derive(Clone, Copy, Debug)]
 struct ModeNow<T> {
-    /// Samples per estimator block.
-    dec: u32,
+    /// Samples per estimator block minus one (saturated): the block clock's last tick, so
+    /// that `tick + 1 ≥ dec` is one comparison, and `dec > 1` a test for zero.
+    last: u32,
     /// The input check's `spike` and `hold` ([`GuardParams`]).
     spike: T,
     hold: u32,
@@ -806,7 +807,7 @@ impl<T: SineTable> Controller<T> {
         };
         // Stopped: DIVE's constants, as `set_mode(None)` gives.
         let now = ModeNow {
-            dec: p.dec_dive,
+            last: p.dec_dive.saturating_sub(1),
             spike: p.guard_dive.spike,
             hold: p.guard_dive.hold,
         };
@@ -1009,8 +1010,8 @@ impl<T: SineTable> Controller<T> {
     /// ([`Self::deliver`]) first. Always false with blocks of one sample.
     #[inline(always)]
     pub fn block_due(&self) -> bool {
-        let dec = self.now.dec;
-        dec > 1 && self.tick + 1 >= dec
+        let last = self.now.last;
+        last > 0 && self.tick >= last
     }
 
     /// The running mode, and its per-sample constants with it.
@@ -1021,7 +1022,7 @@ impl<T: SineTable> Controller<T> {
             _ => (&self.p.guard_dive, self.p.dec_dive),
         };
         self.now = ModeNow {
-            dec,
+            last: dec.saturating_sub(1),
             spike: gp.spike,
             hold: gp.hold,
         };
@@ -1117,7 +1118,7 @@ impl<T: SineTable> Controller<T> {
         let mut st = 0u32;
         // Input: out-of-range, non-finite and spiking readings are replaced by the last good
         // tip position, and the estimator waits (see `crate::guard`).
-        let ModeNow { dec, spike, hold } = self.now;
+        let ModeNow { last, spike, hold } = self.now;
         let input = self
             .guard
             .input_with(spike, hold, d_nm, self.u, self.p.d_max, &BITS);
@@ -1126,7 +1127,7 @@ impl<T: SineTable> Controller<T> {
         let input_ok = input.ok;
         // The block clock: a block closes at the first sample of the next (the caller has
         // taken it, `close_block`, before this step).
-        if self.tick + 1 >= dec {
+        if self.tick >= last {
             self.tick = 0;
         } else {
             self.tick += 1;
