@@ -1379,7 +1379,8 @@ impl<T: SineTable> Controller<T> {
                 if input_ok && t >= self.dive.estimate_from {
                     let h = self.dive.h;
                     let w = self.reg.w(&self.p.reg);
-                    let block = self.p.dec_dive > 1;
+                    // `dec_dive > 1`: the running mode's constants are DIVE's.
+                    let block = self.now.last > 0;
                     let (f, th) = match self.p.dive.regressor {
                         DiveRegressor::Paper => {
                             let phi = self.reg.phi_dive(h);
@@ -1644,7 +1645,8 @@ impl<T: SineTable> Controller<T> {
                 let mut f = 0;
                 let w = self.reg.w(&self.p.reg);
                 let phi = self.reg.phi_sve(self.sve.z0);
-                let block = self.p.dec_sve > 1;
+                // `dec_sve > 1`: the running mode's constants are SVE's.
+                let block = self.now.last > 0;
                 // θ̂₂ ≥ k_min > 0 by projection, so the divisions are safe.
                 let (th, h_hat, depth) = match self.p.sve.regressor {
                     SveRegressor::Decoupled => {
@@ -1759,7 +1761,7 @@ impl<T: SineTable> Controller<T> {
                 let f = T::from_i32(t as i32) * self.p.sve.inv_half;
                 let x = self.sve.x_from + self.sve.x_span * f;
                 self.set_x_same_y(x);
-                if self.p.dec_sve > 1 {
+                if self.now.last > 0 {
                     self.sve.acc.add_held::<2>(v, flags);
                 } else {
                     self.sve.acc.add(v, flags);
