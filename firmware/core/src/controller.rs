@@ -415,8 +415,10 @@ const BITS: FaultBits = FaultBits {
 struct Accumulator<T> {
     base: [T; 4],
     sum: [T; 4],
+    /// Samples added, less the `pending` ones ([`Self::count`]).
     n: u32,
-    /// Samples since the θ̂ entries were last added to `sum`, all with the values `held`.
+    /// Samples since the θ̂ entries were last added to `sum`, all with the values `held`
+    /// (counted into `n` then: one counter per sample, not two).
     pending: u32,
     /// The θ̂ entries of the pending samples (the others equal `base`, so they add 0).
     held: [T; 3],
@@ -452,8 +454,13 @@ impl<T: crate::Real> Accumulator<T> {
             self.sum[i] += v[i] - self.base[i];
         }
         self.pending += 1;
-        self.n += 1;
         self.flags |= flags;
+    }
+
+    /// Samples added.
+    #[inline(always)]
+    fn count(&self) -> u32 {
+        self.n + self.pending
     }
 
     /// The pending samples' θ̂ entries into the sums: before θ̂ changes.
@@ -464,6 +471,7 @@ impl<T: crate::Real> Accumulator<T> {
             for i in 0..3 {
                 self.sum[i] += (self.held[i] - self.base[i]) * count;
             }
+            self.n += self.pending;
             self.pending = 0;
         }
     }
@@ -1504,13 +1512,13 @@ impl<T: SineTable> Controller<T> {
             k_n_per_m: m[1],
             offset_n: m[2],
             // The mean of the constant z₀ over the read-out (0 without samples).
-            centre_m: if s.acc.n > 0 { s.z0 } else { T::ZERO },
+            centre_m: if s.acc.count() > 0 { s.z0 } else { T::ZERO },
             depth_m: m[3],
             regressor: p.regressor,
             flags: s.flags | s.acc.flags,
-            samples: s.acc.n,
+            samples: s.acc.count(),
         };
-        if contact && s.acc.n > 0 {
+        if contact && s.acc.count() > 0 {
             // Warm start of the next tap: neighbours are alike.
             s.theta_warm = [m[0], m[1], m[2]];
             s.u_safe = s.h + self.p.clearance;
@@ -1830,7 +1838,7 @@ impl<T: SineTable> Controller<T> {
         let p = self.p.sve;
         let s = &mut self.sve;
         let m = s.acc.mean();
-        let n = s.acc.n.max(1);
+        let n = s.acc.count().max(1);
         let pixel = if forward {
             s.pixel
         } else {
@@ -1848,7 +1856,7 @@ impl<T: SineTable> Controller<T> {
             bed_height_m: m[2],
             depth_m: m[3],
             flags: s.acc.flags,
-            samples: s.acc.n,
+            samples: s.acc.count(),
         };
         self.record = Some(Record::Pixel(rec));
         s.acc.clear();
@@ -1904,7 +1912,10 @@ mod accumulator_tests {
             per_sample.add(v, 0);
             held.add_held::<3>(v, 0);
         }
-        assert_eq!((per_sample.n, per_sample.flags), (held.n, held.flags));
+        assert_eq!(
+            (per_sample.count(), per_sample.flags),
+            (held.count(), held.flags)
+        );
         assert_means_equal(&per_sample, &held);
         // An SVE-style accumulator (two held entries): the third and fourth per sample.
         let (mut p2, mut h2) = (Accumulator::<f64>::default(), Accumulator::<f64>::default());
