@@ -79,9 +79,9 @@ pub struct Guard<T> {
     reach: T,
     /// Good samples seen since (re)priming, up to 2: position, then velocity known.
     known: u8,
-    /// The last two samples were good: `known` is 2, `elapsed` 1 and `predicted` is `z_good`
-    /// in value (`predicted` itself is not stored while this holds), so a good sample needs
-    /// neither their loads and stores nor the division by 1.
+    /// The last two samples were good and the hold is over: `known` is 2, `elapsed` 1, `hold`
+    /// 0 and `predicted` is `z_good` in value (`predicted` itself is not stored while this
+    /// holds), so a good sample needs neither their loads and stores nor the division by 1.
     steady: bool,
     hold: u32,
     lost_count: u32,
@@ -147,7 +147,11 @@ impl<T: Real> Guard<T> {
                 self.velocity = z - self.z_good;
                 self.z_good = z;
                 self.reach = spike;
-                return self.good(d);
+                return Input {
+                    d,
+                    ok: true,
+                    flags: 0,
+                };
             }
             // A bad sample: the stored state the path below expects, which finds it bad too.
             self.predicted = self.z_good;
@@ -171,9 +175,13 @@ impl<T: Real> Guard<T> {
             self.z_good = z;
             self.predicted = z;
             self.reach = spike;
-            self.steady = self.known > 0;
+            let ok = self.hold == 0;
+            if !ok {
+                self.hold -= 1;
+            }
+            self.steady = self.known > 0 && self.hold == 0;
             self.known = if self.known > 0 { 2 } else { 1 };
-            return self.good(d);
+            return Input { d, ok, flags: 0 };
         }
         let f = if !in_range {
             if d.is_finite() {
@@ -194,16 +202,6 @@ impl<T: Real> Guard<T> {
             ok: false,
             flags: f,
         }
-    }
-
-    /// A good sample's result: the estimator waits out the hold after a bad one.
-    #[inline(always)]
-    fn good(&mut self, d: T) -> Input<T> {
-        let ok = self.hold == 0;
-        if !ok {
-            self.hold -= 1;
-        }
-        Input { d, ok, flags: 0 }
     }
 
     /// Forget the last good tip position (after a jump of U that moves the tip legitimately
