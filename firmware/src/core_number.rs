@@ -90,8 +90,8 @@ impl LoopReal for f32 {
         c.u_m()
     }
     #[inline(always)]
-    fn outputs_m(_: &Controller<f32>, o: &StepOut<f32>) -> [f32; 3] {
-        [o.u_m, o.x_m, o.y_m]
+    fn outputs_m(c: &Controller<f32>, _: &StepOut<f32>) -> [f32; 3] {
+        c.outputs_m()
     }
     #[inline(always)]
     fn estimates_si(c: &Controller<f32>) -> [f32; 3] {

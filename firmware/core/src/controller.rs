@@ -389,8 +389,9 @@ struct Params<T> {
 /// The running mode's per-sample constants (see [`Controller::set_mode`]).
 #[derive(Clone, Copy, Debug)]
 struct ModeNow<T> {
-    /// Samples per estimator block.
-    dec: u32,
+    /// Samples per estimator block minus one (saturated): the block clock's last tick, so
+    /// that `tick + 1 ≥ dec` is one comparison, and `dec > 1` a test for zero.
+    last: u32,
     /// The input check's `spike` and `hold` ([`GuardParams`]).
     spike: T,
     hold: u32,
@@ -414,8 +415,10 @@ const BITS: FaultBits = FaultBits {
 struct Accumulator<T> {
     base: [T; 4],
     sum: [T; 4],
+    /// Samples added, less the `pending` ones ([`Self::count`]).
     n: u32,
-    /// Samples since the θ̂ entries were last added to `sum`, all with the values `held`.
+    /// Samples since the θ̂ entries were last added to `sum`, all with the values `held`
+    /// (counted into `n` then: one counter per sample, not two).
     pending: u32,
     /// The θ̂ entries of the pending samples (the others equal `base`, so they add 0).
     held: [T; 3],
@@ -451,8 +454,13 @@ impl<T: crate::Real> Accumulator<T> {
             self.sum[i] += v[i] - self.base[i];
         }
         self.pending += 1;
-        self.n += 1;
         self.flags |= flags;
+    }
+
+    /// Samples added.
+    #[inline(always)]
+    fn count(&self) -> u32 {
+        self.n + self.pending
     }
 
     /// The pending samples' θ̂ entries into the sums: before θ̂ changes.
@@ -463,6 +471,7 @@ impl<T: crate::Real> Accumulator<T> {
             for i in 0..3 {
                 self.sum[i] += (self.held[i] - self.base[i]) * count;
             }
+            self.n += self.pending;
             self.pending = 0;
         }
     }
@@ -490,6 +499,9 @@ struct DiveState<T> {
     tap: u32,
     t: u32,
     dwell_end: u32,
+    /// `dwell_end − ramp_samples` (saturated): where the excitation ramps out, one comparison
+    /// per sample instead of a sum and two.
+    ramp_from: u32,
     estimate_from: u32,
     readout_from: u32,
     u_cmd: T,
@@ -520,6 +532,10 @@ struct SveState<T> {
     next_boundary: u32,
     acc: Accumulator<T>,
     x_acc: T,
+    /// The pass's ramp `x = x_from + x_span·f`, set when it begins: x0 and x1 − x0 forward,
+    /// x1 and x0 − x1 backward (the same operands as picking them by direction every sample).
+    x_from: T,
+    x_span: T,
     /// The surface was lost (or the force limit hit): re-approaching while the scan goes on.
     lost: bool,
     reapproach_from: T,
@@ -542,6 +558,9 @@ struct SveState<T> {
 pub struct Controller<T> {
     mode: Option<Mode>,
     phase: Phase,
+    /// `set_x_same_y` would leave y as it is: y and its code are `y_quantized`'s value and
+    /// code, and quantising that value gives it back. Cleared where y is set (`set_xy`).
+    y_settled: bool,
     u: T,
     u_code: i32,
     x: T,
@@ -758,6 +777,7 @@ impl<T: SineTable> Controller<T> {
             tap: 0,
             t: 0,
             dwell_end: 0,
+            ramp_from: 0,
             estimate_from: 0,
             readout_from: 0,
             u_cmd: u,
@@ -786,6 +806,8 @@ impl<T: SineTable> Controller<T> {
             next_boundary: 0,
             acc: Accumulator::default(),
             x_acc: T::ZERO,
+            x_from: T::ZERO,
+            x_span: T::ZERO,
             lost: false,
             force_slow: T::ZERO,
             left: false,
@@ -793,7 +815,7 @@ impl<T: SineTable> Controller<T> {
         };
         // Stopped: DIVE's constants, as `set_mode(None)` gives.
         let now = ModeNow {
-            dec: p.dec_dive,
+            last: p.dec_dive.saturating_sub(1),
             spike: p.guard_dive.spike,
             hold: p.guard_dive.hold,
         };
@@ -831,6 +853,7 @@ impl<T: SineTable> Controller<T> {
             mode: None,
             now,
             phase: Phase::Idle,
+            y_settled: false,
             u,
             u_code,
             x,
@@ -867,6 +890,18 @@ impl<T: SineTable> Controller<T> {
     /// The U currently applied (m).
     pub fn u_m(&self) -> T {
         self.u * self.p.to_m
+    }
+
+    /// U, X and Y of the last step in metres: [`StepOut`]'s `u_m`, `x_m`, `y_m`, the same
+    /// products. (The firmware's telemetry takes them here, only when it sends them: read from
+    /// the step's output, their loads were hoisted into every sample.)
+    #[inline(always)]
+    pub fn outputs_m(&self) -> [T; 3] {
+        [
+            self.u * self.p.to_m,
+            self.x * self.p.to_m,
+            self.y * self.p.to_m,
+        ]
     }
 
     /// Carry out a command from the host.
@@ -983,8 +1018,8 @@ impl<T: SineTable> Controller<T> {
     /// ([`Self::deliver`]) first. Always false with blocks of one sample.
     #[inline(always)]
     pub fn block_due(&self) -> bool {
-        let dec = self.now.dec;
-        dec > 1 && self.tick + 1 >= dec
+        let last = self.now.last;
+        last > 0 && self.tick >= last
     }
 
     /// The running mode, and its per-sample constants with it.
@@ -995,7 +1030,7 @@ impl<T: SineTable> Controller<T> {
             _ => (&self.p.guard_dive, self.p.dec_dive),
         };
         self.now = ModeNow {
-            dec,
+            last: dec.saturating_sub(1),
             spike: gp.spike,
             hold: gp.hold,
         };
@@ -1091,7 +1126,7 @@ impl<T: SineTable> Controller<T> {
         let mut st = 0u32;
         // Input: out-of-range, non-finite and spiking readings are replaced by the last good
         // tip position, and the estimator waits (see `crate::guard`).
-        let ModeNow { dec, spike, hold } = self.now;
+        let ModeNow { last, spike, hold } = self.now;
         let input = self
             .guard
             .input_with(spike, hold, d_nm, self.u, self.p.d_max, &BITS);
@@ -1100,7 +1135,7 @@ impl<T: SineTable> Controller<T> {
         let input_ok = input.ok;
         // The block clock: a block closes at the first sample of the next (the caller has
         // taken it, `close_block`, before this step).
-        if self.tick + 1 >= dec {
+        if self.tick >= last {
             self.tick = 0;
         } else {
             self.tick += 1;
@@ -1119,7 +1154,7 @@ impl<T: SineTable> Controller<T> {
         }
         self.u = u;
         self.u_code = u_code;
-        if self.exc.envelope() > T::ZERO {
+        if self.exc.sounding() {
             st |= status::EXCITING;
         }
         if self.record.is_some() {
@@ -1147,6 +1182,7 @@ impl<T: SineTable> Controller<T> {
         self.x_code = xc;
         self.y = yv;
         self.y_code = yc;
+        self.y_settled = false;
     }
 
     /// `set_xy(x, self.y)`, the scan's case, with the y quantisation remembered: it is a
@@ -1156,6 +1192,11 @@ impl<T: SineTable> Controller<T> {
         let (xc, xv, _) = self.p.xy_dac.quantize(x);
         self.x = xv;
         self.x_code = xc;
+        if self.y_settled {
+            // The lines below would store the y and code there are: skipped (one byte
+            // tested instead of two loads, a comparison and four copies per sample).
+            return;
+        }
         let y = self.y;
         if y != self.y_quantized.0 {
             let (yc, yv, _) = self.p.xy_dac.quantize(y);
@@ -1163,6 +1204,10 @@ impl<T: SineTable> Controller<T> {
         }
         self.y_code = self.y_quantized.1;
         self.y = self.y_quantized.2;
+        // A fixed point when the value quantises to itself (always, but for grids finer
+        // than the number type; never for NaN): until y is set again, the next call's test
+        // is true and it stores these same two.
+        self.y_settled = self.y == self.y_quantized.0;
     }
 
     /// The header of the block handed over so far, with a pending restart and the samples
@@ -1339,10 +1384,11 @@ impl<T: SineTable> Controller<T> {
                     self.dive.u_cmd = u;
                     return u + self.exc.next(&self.p.dive.exc);
                 }
-                if t >= self.dive.estimate_from && input_ok {
+                if input_ok && t >= self.dive.estimate_from {
                     let h = self.dive.h;
                     let w = self.reg.w(&self.p.reg);
-                    let block = self.p.dec_dive > 1;
+                    // `dec_dive > 1`: the running mode's constants are DIVE's.
+                    let block = self.now.last > 0;
                     let (f, th) = match self.p.dive.regressor {
                         DiveRegressor::Paper => {
                             let phi = self.reg.phi_dive(h);
@@ -1372,11 +1418,12 @@ impl<T: SineTable> Controller<T> {
                         *st |= status::READOUT;
                     }
                 }
-                if t + self.p.dive.ramp_samples >= self.dive.dwell_end {
+                // t + ramp ≥ dwell_end; dwell_end ≥ ramp_from, so the end is inside.
+                if t >= self.dive.ramp_from {
                     self.exc.set_on(false);
-                }
-                if t >= self.dive.dwell_end {
-                    self.finish_tap(true);
+                    if t >= self.dive.dwell_end {
+                        self.finish_tap(true);
+                    }
                 }
             }
             Phase::Retract => {
@@ -1434,6 +1481,7 @@ impl<T: SineTable> Controller<T> {
             self.dive.flags |= status::SHORT_DWELL;
         }
         self.dive.dwell_end = end.max(estimate_from + p.ramp_samples + p.readout_samples);
+        self.dive.ramp_from = self.dive.dwell_end.saturating_sub(p.ramp_samples);
         self.dive.estimate_from = estimate_from;
         self.dive.readout_from = readout_from.max(estimate_from);
         self.dive.acc.clear();
@@ -1464,13 +1512,13 @@ impl<T: SineTable> Controller<T> {
             k_n_per_m: m[1],
             offset_n: m[2],
             // The mean of the constant z₀ over the read-out (0 without samples).
-            centre_m: if s.acc.n > 0 { s.z0 } else { T::ZERO },
+            centre_m: if s.acc.count() > 0 { s.z0 } else { T::ZERO },
             depth_m: m[3],
             regressor: p.regressor,
             flags: s.flags | s.acc.flags,
-            samples: s.acc.n,
+            samples: s.acc.count(),
         };
-        if contact && s.acc.n > 0 {
+        if contact && s.acc.count() > 0 {
             // Warm start of the next tap: neighbours are alike.
             s.theta_warm = [m[0], m[1], m[2]];
             s.u_safe = s.h + self.p.clearance;
@@ -1605,7 +1653,8 @@ impl<T: SineTable> Controller<T> {
                 let mut f = 0;
                 let w = self.reg.w(&self.p.reg);
                 let phi = self.reg.phi_sve(self.sve.z0);
-                let block = self.p.dec_sve > 1;
+                // `dec_sve > 1`: the running mode's constants are SVE's.
+                let block = self.now.last > 0;
                 // θ̂₂ ≥ k_min > 0 by projection, so the divisions are safe.
                 let (th, h_hat, depth) = match self.p.sve.regressor {
                     SveRegressor::Decoupled => {
@@ -1718,13 +1767,9 @@ impl<T: SineTable> Controller<T> {
             Phase::Forward | Phase::Backward => {
                 let forward = self.phase == Phase::Forward;
                 let f = T::from_i32(t as i32) * self.p.sve.inv_half;
-                let x = if forward {
-                    self.p.sve.x0 + (self.p.sve.x1 - self.p.sve.x0) * f
-                } else {
-                    self.p.sve.x1 + (self.p.sve.x0 - self.p.sve.x1) * f
-                };
+                let x = self.sve.x_from + self.sve.x_span * f;
                 self.set_x_same_y(x);
-                if self.p.dec_sve > 1 {
+                if self.now.last > 0 {
                     self.sve.acc.add_held::<2>(v, flags);
                 } else {
                     self.sve.acc.add(v, flags);
@@ -1777,6 +1822,11 @@ impl<T: SineTable> Controller<T> {
         self.sve.next_boundary = (p.half_samples as u64 / NonZeroU64::from(p.pixels)) as u32;
         self.sve.acc.clear();
         self.sve.x_acc = T::ZERO;
+        (self.sve.x_from, self.sve.x_span) = if forward {
+            (p.x0, p.x1 - p.x0)
+        } else {
+            (p.x1, p.x0 - p.x1)
+        };
         self.phase = if forward {
             Phase::Forward
         } else {
@@ -1788,7 +1838,7 @@ impl<T: SineTable> Controller<T> {
         let p = self.p.sve;
         let s = &mut self.sve;
         let m = s.acc.mean();
-        let n = s.acc.n.max(1);
+        let n = s.acc.count().max(1);
         let pixel = if forward {
             s.pixel
         } else {
@@ -1806,7 +1856,7 @@ impl<T: SineTable> Controller<T> {
             bed_height_m: m[2],
             depth_m: m[3],
             flags: s.acc.flags,
-            samples: s.acc.n,
+            samples: s.acc.count(),
         };
         self.record = Some(Record::Pixel(rec));
         s.acc.clear();
@@ -1862,7 +1912,10 @@ mod accumulator_tests {
             per_sample.add(v, 0);
             held.add_held::<3>(v, 0);
         }
-        assert_eq!((per_sample.n, per_sample.flags), (held.n, held.flags));
+        assert_eq!(
+            (per_sample.count(), per_sample.flags),
+            (held.count(), held.flags)
+        );
         assert_means_equal(&per_sample, &held);
         // An SVE-style accumulator (two held entries): the third and fourth per sample.
         let (mut p2, mut h2) = (Accumulator::<f64>::default(), Accumulator::<f64>::default());

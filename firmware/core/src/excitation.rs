@@ -210,6 +210,11 @@ pub struct Excitation<T> {
     left: u32,
     envelope: T,
     on: bool,
+    /// `on` and the envelope at 1, kept with them: the per-sample test is then one byte, not
+    /// a float comparison.
+    full: bool,
+    /// The envelope above zero, kept with it (the step's `EXCITING` flag, every sample).
+    sounding: bool,
 }
 
 impl<T: SineTable> Excitation<T> {
@@ -217,17 +222,26 @@ impl<T: SineTable> Excitation<T> {
     #[inline(always)]
     pub fn set_on(&mut self, on: bool) {
         self.on = on;
+        self.full = on && self.envelope == T::ONE;
     }
 
     /// Switch off at once.
     pub fn silence(&mut self) {
         self.on = false;
         self.envelope = T::ZERO;
+        self.full = false;
+        self.sounding = false;
     }
 
     /// The current envelope.
     pub fn envelope(&self) -> T {
         self.envelope
+    }
+
+    /// True when the envelope is above zero (`envelope() > 0`, without the comparison).
+    #[inline(always)]
+    pub fn sounding(&self) -> bool {
+        self.sounding
     }
 
     /// True when fully on.
@@ -291,7 +305,7 @@ impl<T: SineTable> Excitation<T> {
     pub fn next(&mut self, p: &ExcitationParams<T>) -> T {
         // The phases run continuously, on or off, so the tones are coherent from tap to tap.
         let s = self.tones(p);
-        if self.on && self.envelope == T::ONE {
+        if self.full {
             // Fully on: the ramp below would leave the envelope at 1, and 1·s = s.
             return s;
         }
@@ -301,7 +315,9 @@ impl<T: SineTable> Excitation<T> {
             self.envelope - p.ramp_step
         };
         self.envelope = env.clamp_to(T::ZERO, T::ONE);
-        if self.envelope > T::ZERO {
+        self.full = self.on && self.envelope == T::ONE;
+        self.sounding = self.envelope > T::ZERO;
+        if self.sounding {
             self.envelope * s
         } else {
             T::ZERO

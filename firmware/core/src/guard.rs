@@ -79,6 +79,10 @@ pub struct Guard<T> {
     reach: T,
     /// Good samples seen since (re)priming, up to 2: position, then velocity known.
     known: u8,
+    /// The last two samples were good and the hold is over: `known` is 2, `elapsed` 1, `hold`
+    /// 0 and `predicted` is `z_good` in value (`predicted` itself is not stored while this
+    /// holds), so a good sample needs neither their loads and stores nor the division by 1.
+    steady: bool,
     hold: u32,
     lost_count: u32,
 }
@@ -135,6 +139,24 @@ impl<T: Real> Guard<T> {
         let z = u - d;
         // In range (false for NaN), and not a jump of the tip.
         let in_range = d.abs_lt(d_max);
+        if self.steady {
+            // The path below with known = 2, elapsed = 1, predicted = z_good.
+            let predicted = self.z_good + self.velocity;
+            if in_range && (z - predicted).abs_lt(self.reach) {
+                // (z − z_good)/1 = z − z_good exactly (both finite: d in range, U a DAC value).
+                self.velocity = z - self.z_good;
+                self.z_good = z;
+                self.reach = spike;
+                return Input {
+                    d,
+                    ok: true,
+                    flags: 0,
+                };
+            }
+            // A bad sample: the stored state the path below expects, which finds it bad too.
+            self.predicted = self.z_good;
+            self.steady = false;
+        }
         self.predicted += self.velocity;
         let jump = z - self.predicted;
         let plausible = self.known < 2 || jump.abs_lt(self.reach);
@@ -153,11 +175,12 @@ impl<T: Real> Guard<T> {
             self.z_good = z;
             self.predicted = z;
             self.reach = spike;
-            self.known = if self.known > 0 { 2 } else { 1 };
             let ok = self.hold == 0;
             if !ok {
                 self.hold -= 1;
             }
+            self.steady = self.known > 0 && self.hold == 0;
+            self.known = if self.known > 0 { 2 } else { 1 };
             return Input { d, ok, flags: 0 };
         }
         let f = if !in_range {
@@ -184,6 +207,10 @@ impl<T: Real> Guard<T> {
     /// Forget the last good tip position (after a jump of U that moves the tip legitimately
     /// fast, such as the force-limit retract).
     pub fn reprime(&mut self) {
+        if self.steady {
+            self.predicted = self.z_good;
+            self.steady = false;
+        }
         self.known = 0;
     }
 
