@@ -15,6 +15,10 @@
 //! 2. the best grid point, refined by golden section in each smooth shape parameter;
 //! 3. Levenberg–Marquardt over everything from there.
 //!
+//! At the first stage each candidate is also fitted from the nominal model's other optima;
+//! such a polish gives up when it has not come near the fit from the model after a few
+//! iterations ([`GIVE_UP_AFTER`], [`GIVE_UP_MARGIN`]).
+//!
 //! **Choice** (forward selection). Every candidate is tested against the current model with
 //! the held-out test of [`super::noise`] at the family-wise false-alarm rate α split over the
 //! candidates (Bonferroni); among those that pass, the one with the largest held-out
