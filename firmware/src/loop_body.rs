@@ -235,9 +235,10 @@ impl EstimatorState {
     }
 }
 
-/// Every waiting block, in order: the samples to discard, then the block's samples into the
-/// task's block sums, the block update, the result queued back. A header is queued after all
-/// its samples, so they are there (should one be missing, the block takes those there are).
+/// Every waiting block, in order: its samples out of the queue through the task's filters
+/// (the ones to discard first, then the block's, the estimating ones into the block sums), the
+/// block update, the result queued back. A header is queued after all its samples, so they
+/// are there (should one be missing, the block takes those there are).
 #[inline(always)]
 pub fn run_blocks(
     task: &mut EstimatorTask,
@@ -246,11 +247,6 @@ pub fn run_blocks(
     results: &mut Producer<'_, BlockResult>,
 ) {
     while let Some(b) = blocks.peek() {
-        for _ in 0..b.skip {
-            if samples.dequeue().is_none() {
-                break;
-            }
-        }
         let r = task.run(b, core::iter::from_fn(|| samples.dequeue()));
         // The value is not read again: this only frees the slot.
         let _ = blocks.dequeue();
@@ -510,9 +506,6 @@ mod tests {
     }
     impl EstimatorLink for Inline {
         fn send(&mut self, b: Block) -> bool {
-            for _ in 0..b.skip {
-                self.2.pop_front();
-            }
             let q = &mut self.2;
             self.1 = Some(self.0.run(&b, core::iter::from_fn(|| q.pop_front())));
             true
@@ -547,8 +540,10 @@ mod tests {
         };
         let v = |x: f64| <Number as visco_core::Real>::from_f64(x);
         let x = Sample {
-            w: v(5.0),
-            phi: [v(1.0), v(2.0), v(1.0)],
+            z: v(5.0),
+            u: v(1.0),
+            r: v(2.0),
+            flags: visco_core::schedule::SAMPLE_EST,
         };
         // The estimator stalled for 300 samples: 45 do not fit; the block (3 to discard after
         // a restart, 297 its own) is handed over without information.
@@ -575,12 +570,13 @@ mod tests {
         link.push(x);
         assert!(link.send(header(0, 1)));
         assert_eq!(brx.peek().map(|b| (b.skip, b.samples)), Some((2, 1)));
-        // In step: four samples taken, then the two lost headers' and this block's.
+        // In step: four samples taken, then the two lost headers' (through the filters) and
+        // this block's.
         for _ in 0..ESTIMATOR_DEPTH {
             srx.dequeue();
         }
         let mut alone = task;
-        let want = alone.run(&header(0, 1), core::iter::once(x));
+        let want = alone.run(&header(2, 1), [x; 3].into_iter());
         run_blocks(&mut task, &mut brx, &mut srx, &mut rtx);
         assert!(srx.dequeue().is_none());
         let got = link.receive().unwrap();
