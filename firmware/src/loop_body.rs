@@ -1,7 +1,8 @@
 //! What the loop interrupt does for one sample, independent of the board:
 //! command → ADC → at a block close: the estimator's result adopted and the block's header
-//! handed to the estimator → `step` (an estimating sample's `w` and `φ` queued for the
-//! estimator) → DAC → lateral outputs → telemetry.
+//! handed to the estimator → `step` (while a mode runs, the sample's Z and U queued for the
+//! estimator task, which runs the prefilters and the regressor) → DAC → lateral outputs →
+//! telemetry.
 //!
 //! It never blocks, never allocates and has no panic path: a missing ADC sample is counted
 //! and the step skipped; a full telemetry queue is counted, and the main loop turns that
@@ -58,7 +59,7 @@ pub struct Counters {
     pub estimator_late: AtomicU32,
     /// Blocks lost to a full estimator queue (their queued samples are discarded by the task).
     pub blocks_dropped: AtomicU32,
-    /// Estimating samples lost to a full sample queue (the estimator interrupt more than
+    /// Samples lost to a full sample queue (the estimator interrupt more than
     /// [`SAMPLE_DEPTH`] samples behind). The block they belong to is handed over without
     /// information: the task discards its queued samples, applies its restarts, and θ̂ stays.
     pub samples_dropped: AtomicU32,
@@ -88,14 +89,14 @@ fn bump(c: &AtomicU32) {
 /// one is in flight by the schedule (`visco_core::schedule`); the rest is slack for an overrun.
 pub const ESTIMATOR_DEPTH: usize = 4;
 
-/// Estimating samples the loop → estimator sample queue holds (`heapless::spsc::Queue` of
-/// this + 1 slots, a power of two, so that its indices wrap with a mask): up to two blocks of
+/// Samples the loop → estimator sample queue holds (`heapless::spsc::Queue` of this + 1
+/// slots, a power of two, so that its indices wrap with a mask): up to two blocks of
 /// the largest N (64) wait by the schedule (the block being handed over and the one the task
 /// works on), the rest is slack for an overrun.
 pub const SAMPLE_DEPTH: usize = 255;
 
-/// The loop's end of the estimator task: estimating samples (the [`SampleSink`]) and block
-/// headers out, results back.
+/// The loop's end of the estimator task: the samples of a running mode (the [`SampleSink`])
+/// and block headers out, results back.
 pub trait EstimatorLink: SampleSink<Number> {
     /// Hands over a block header (and wakes the task); false when the queue is full.
     fn send(&mut self, b: Block) -> bool;
@@ -116,7 +117,7 @@ pub trait EstimatorLink: SampleSink<Number> {
 pub struct QueueLink {
     /// Loop → estimator, the block headers.
     pub blocks: Producer<'static, Block>,
-    /// Loop → estimator, the estimating samples.
+    /// Loop → estimator, the samples.
     pub samples: Producer<'static, Sample>,
     /// Estimator → loop.
     pub results: Consumer<'static, BlockResult>,
@@ -210,7 +211,7 @@ pub struct EstimatorState {
     pub task: EstimatorTask,
     /// Loop → estimator, the block headers.
     pub blocks: Consumer<'static, Block>,
-    /// Loop → estimator, the estimating samples.
+    /// Loop → estimator, the samples.
     pub samples: Consumer<'static, Sample>,
     /// Estimator → loop.
     pub results: Producer<'static, BlockResult>,
