@@ -5,7 +5,7 @@
 //! (`ESTIMATOR`) to the lower-priority estimator interrupt. The main loop touches them only
 //! through [`with_loop`] / [`with_both`], which mask the interrupts for the duration (a few
 //! hundred cycles, only on configuration commands, never per sample). Data moves through
-//! lock-free `heapless::spsc` queues: telemetry loop → main, estimating samples and block
+//! lock-free `heapless::spsc` queues: telemetry loop → main, the samples of a running mode and block
 //! headers loop → estimator, results estimator → loop, and on QEMU replay samples main → loop; core commands main → loop are a
 //! command byte.
 

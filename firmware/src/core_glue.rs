@@ -36,7 +36,7 @@ pub type ConfigError = visco_core::ConfigError;
 
 /// A block header for the estimator task (loop → estimator interrupt).
 pub type Block = visco_core::schedule::Block<Number>;
-/// One estimating sample for the estimator task (loop → estimator interrupt).
+/// One sample for the estimator task, its regressor's raw inputs (loop → estimator interrupt).
 pub type Sample = visco_core::schedule::Sample<Number>;
 pub use visco_core::schedule::SampleSink;
 /// The estimator task's result (estimator interrupt → loop).
@@ -94,7 +94,7 @@ pub trait LoopCore {
     /// Applies a command (called in the loop interrupt, before the step).
     fn apply_command(&mut self, cmd: CoreCommand);
     /// One loop sample: the measured deflection as [`crate::scale::Scale::to_input`] gives it;
-    /// an estimating sample goes to `sink`. When [`Self::block_due`], the block is taken
+    /// while a mode runs, the sample goes to `sink` (the estimator task's inputs). When [`Self::block_due`], the block is taken
     /// first ([`Self::close_block`]).
     fn step(&mut self, d: Number, sink: &mut impl SampleSink<Number>) -> StepOut;
     /// The next step closes a block: deliver the estimator's result, then close the block.

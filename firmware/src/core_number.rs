@@ -41,7 +41,7 @@ pub trait LoopReal: SineTable {
     /// One loop sample (with the block estimator run in-line: the host's reference).
     fn step(c: &mut Controller<Self>, d: Self) -> StepOut<Self>;
     /// One loop sample without the block estimator (the firmware's loop interrupt, which
-    /// hands the estimating samples to `sink` and the block headers to its estimator
+    /// hands the samples of a running mode to `sink` and the block headers to its estimator
     /// interrupt: `Controller::step_loop`).
     fn step_loop(
         c: &mut Controller<Self>,

@@ -1,7 +1,8 @@
 //! What the loop interrupt does for one sample, independent of the board:
 //! command → ADC → at a block close: the estimator's result adopted and the block's header
-//! handed to the estimator → `step` (an estimating sample's `w` and `φ` queued for the
-//! estimator) → DAC → lateral outputs → telemetry.
+//! handed to the estimator → `step` (while a mode runs, the sample's Z and U queued for the
+//! estimator task, which runs the prefilters and the regressor) → DAC → lateral outputs →
+//! telemetry.
 //!
 //! It never blocks, never allocates and has no panic path: a missing ADC sample is counted
 //! and the step skipped; a full telemetry queue is counted, and the main loop turns that
@@ -58,7 +59,7 @@ pub struct Counters {
     pub estimator_late: AtomicU32,
     /// Blocks lost to a full estimator queue (their queued samples are discarded by the task).
     pub blocks_dropped: AtomicU32,
-    /// Estimating samples lost to a full sample queue (the estimator interrupt more than
+    /// Samples lost to a full sample queue (the estimator interrupt more than
     /// [`SAMPLE_DEPTH`] samples behind). The block they belong to is handed over without
     /// information: the task discards its queued samples, applies its restarts, and θ̂ stays.
     pub samples_dropped: AtomicU32,
@@ -88,14 +89,14 @@ fn bump(c: &AtomicU32) {
 /// one is in flight by the schedule (`visco_core::schedule`); the rest is slack for an overrun.
 pub const ESTIMATOR_DEPTH: usize = 4;
 
-/// Estimating samples the loop → estimator sample queue holds (`heapless::spsc::Queue` of
-/// this + 1 slots, a power of two, so that its indices wrap with a mask): up to two blocks of
+/// Samples the loop → estimator sample queue holds (`heapless::spsc::Queue` of this + 1
+/// slots, a power of two, so that its indices wrap with a mask): up to two blocks of
 /// the largest N (64) wait by the schedule (the block being handed over and the one the task
 /// works on), the rest is slack for an overrun.
 pub const SAMPLE_DEPTH: usize = 255;
 
-/// The loop's end of the estimator task: estimating samples (the [`SampleSink`]) and block
-/// headers out, results back.
+/// The loop's end of the estimator task: the samples of a running mode (the [`SampleSink`])
+/// and block headers out, results back.
 pub trait EstimatorLink: SampleSink<Number> {
     /// Hands over a block header (and wakes the task); false when the queue is full.
     fn send(&mut self, b: Block) -> bool;
@@ -116,7 +117,7 @@ pub trait EstimatorLink: SampleSink<Number> {
 pub struct QueueLink {
     /// Loop → estimator, the block headers.
     pub blocks: Producer<'static, Block>,
-    /// Loop → estimator, the estimating samples.
+    /// Loop → estimator, the samples.
     pub samples: Producer<'static, Sample>,
     /// Estimator → loop.
     pub results: Consumer<'static, BlockResult>,
@@ -210,7 +211,7 @@ pub struct EstimatorState {
     pub task: EstimatorTask,
     /// Loop → estimator, the block headers.
     pub blocks: Consumer<'static, Block>,
-    /// Loop → estimator, the estimating samples.
+    /// Loop → estimator, the samples.
     pub samples: Consumer<'static, Sample>,
     /// Estimator → loop.
     pub results: Producer<'static, BlockResult>,
@@ -235,9 +236,10 @@ impl EstimatorState {
     }
 }
 
-/// Every waiting block, in order: the samples to discard, then the block's samples into the
-/// task's block sums, the block update, the result queued back. A header is queued after all
-/// its samples, so they are there (should one be missing, the block takes those there are).
+/// Every waiting block, in order: its samples out of the queue through the task's filters
+/// (the ones to discard first, then the block's, the estimating ones into the block sums), the
+/// block update, the result queued back. A header is queued after all its samples, so they
+/// are there (should one be missing, the block takes those there are).
 #[inline(always)]
 pub fn run_blocks(
     task: &mut EstimatorTask,
@@ -246,11 +248,6 @@ pub fn run_blocks(
     results: &mut Producer<'_, BlockResult>,
 ) {
     while let Some(b) = blocks.peek() {
-        for _ in 0..b.skip {
-            if samples.dequeue().is_none() {
-                break;
-            }
-        }
         let r = task.run(b, core::iter::from_fn(|| samples.dequeue()));
         // The value is not read again: this only frees the slot.
         let _ = blocks.dequeue();
@@ -510,9 +507,6 @@ mod tests {
     }
     impl EstimatorLink for Inline {
         fn send(&mut self, b: Block) -> bool {
-            for _ in 0..b.skip {
-                self.2.pop_front();
-            }
             let q = &mut self.2;
             self.1 = Some(self.0.run(&b, core::iter::from_fn(|| q.pop_front())));
             true
@@ -547,8 +541,10 @@ mod tests {
         };
         let v = |x: f64| <Number as visco_core::Real>::from_f64(x);
         let x = Sample {
-            w: v(5.0),
-            phi: [v(1.0), v(2.0), v(1.0)],
+            z: v(5.0),
+            u: v(1.0),
+            r: v(2.0),
+            flags: visco_core::schedule::SAMPLE_EST,
         };
         // The estimator stalled for 300 samples: 45 do not fit; the block (3 to discard after
         // a restart, 297 its own) is handed over without information.
@@ -575,12 +571,13 @@ mod tests {
         link.push(x);
         assert!(link.send(header(0, 1)));
         assert_eq!(brx.peek().map(|b| (b.skip, b.samples)), Some((2, 1)));
-        // In step: four samples taken, then the two lost headers' and this block's.
+        // In step: four samples taken, then the two lost headers' (through the filters) and
+        // this block's.
         for _ in 0..ESTIMATOR_DEPTH {
             srx.dequeue();
         }
         let mut alone = task;
-        let want = alone.run(&header(0, 1), core::iter::once(x));
+        let want = alone.run(&header(2, 1), [x; 3].into_iter());
         run_blocks(&mut task, &mut brx, &mut srx, &mut rtx);
         assert!(srx.dequeue().is_none());
         let got = link.receive().unwrap();

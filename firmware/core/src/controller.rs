@@ -35,9 +35,10 @@ use crate::excitation::{Excitation, ExcitationParams, SineTable, Tone};
 use crate::geometry::mean_sag;
 use crate::guard::{FaultBits, Guard, GuardParams};
 use crate::prefilter::HighPass;
-use crate::regressor::{Regressor, RegressorParams};
+use crate::regressor::RegressorParams;
 use crate::schedule::{
     Block, BlockResult, BlockSums, EstimatorTask, Sample, SampleSink, Target, TaskParams,
+    SAMPLE_EST, SAMPLE_HP, SAMPLE_HP_REST,
 };
 use crate::units;
 use core::num::{NonZeroU32, NonZeroU64};
@@ -525,7 +526,6 @@ struct SveState<T> {
     t: u32,
     z0: T,
     d_free: T,
-    hp: [HighPass<T>; 3],
     u_cmd: T,
     approach_from: T,
     pixel: u32,
@@ -576,7 +576,9 @@ pub struct Controller<T> {
     /// Status bits of the result adopted this sample.
     adopted: u32,
     guard: Guard<T>,
-    reg: Regressor<T>,
+    /// Z = U − D of the last sample (the tip position, not prefiltered: the prefilters run in
+    /// the estimator task).
+    z: T,
     contact: ContactDetector<T>,
     exc: Excitation<T>,
     /// θ̂ of the two- and three-parameter estimators as the loop uses them.
@@ -799,7 +801,6 @@ impl<T: SineTable> Controller<T> {
             t: 0,
             z0: T::ZERO,
             d_free: T::ZERO,
-            hp: [HighPass::default(); 3],
             u_cmd: u,
             approach_from: u,
             pixel: 0,
@@ -830,8 +831,11 @@ impl<T: SineTable> Controller<T> {
                 // 1/T and α/T of the loop period: a block sample's weight T/m².
                 acc_dive: (t(1.0 / period_us), t(d.estimator.alpha / period_us)),
                 acc_sve: (t(1.0 / period_us), t(s.estimator.alpha / period_us)),
+                reg: p.reg,
+                highpass: p.sve.highpass,
             },
             p.dive.theta0,
+            u,
         );
         let th2 = task.estimator2().theta();
         Ok(Self {
@@ -863,7 +867,7 @@ impl<T: SineTable> Controller<T> {
             y_quantized: (y, p.xy_dac.quantize(y).0, p.xy_dac.quantize(y).1),
             guard: Guard::default(),
             tick: 0,
-            reg: Regressor::at_rest(u, u),
+            z: u,
             contact: ContactDetector::new(T::ZERO),
             exc: Excitation::default(),
             dive,
@@ -990,7 +994,7 @@ impl<T: SineTable> Controller<T> {
             Some(Mode::Sve) | None if p.sve.regressor == SveRegressor::Decoupled => {
                 let th = self.theta2;
                 let force = p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
-                (th[0], th[1], (self.reg.z_x() + force / th[1]))
+                (th[0], th[1], (self.z + force / th[1]))
             }
             _ => {
                 let th = self.theta3;
@@ -1050,7 +1054,7 @@ impl<T: SineTable> Controller<T> {
     /// result from before the last restart is dropped.
     #[inline(always)]
     pub fn deliver(&mut self, r: &BlockResult<T>) {
-        if r.epoch != self.epoch {
+        if r.epoch != self.epoch || !r.updated {
             return;
         }
         // The read-out sums take the samples of the θ̂ about to be replaced.
@@ -1107,17 +1111,20 @@ impl<T: SineTable> Controller<T> {
         }
         let mut handed: Option<Sample<T>> = None;
         let out = self.step_loop(d_nm, &mut |x| handed = Some(x));
-        // A sample handed over and then taken back by a restart in the same step (the
-        // restart moved it to `skip_n`) is not added: the task would discard it.
-        if let (Some(x), true) = (handed, self.block_n > 0) {
-            let acc = self.task.acc(self.target);
-            self.host_sums.add(self.target, acc, &x);
+        // The step hands its sample over after any restart in it, so it is the block's.
+        if let Some(x) = handed {
+            if let Some((w, phi)) = self.task.feed(&x) {
+                let acc = self.task.acc(self.target);
+                self.host_sums.add(self.target, acc, w, &phi);
+            }
         }
         out
     }
 
-    /// The loop's part of [`Self::step_internal`]: everything but the block estimator. With
-    /// blocks (N > 1) every estimating sample's `w` and `φ` go to `sink`, in order; the
+    /// The loop's part of [`Self::step_internal`]: everything but the estimator task (the
+    /// prefilters, the regressor, the SVE high-passes and the block estimator). With blocks
+    /// (N > 1) every sample of a running mode goes to `sink` ([`Sample`]: Z, U, the
+    /// regressor's reference, whether it estimates), in order; the
     /// caller takes the block headers with [`Self::close_block`] (when [`Self::block_due`],
     /// before this step) and gives the estimator task the samples they count; the results
     /// come back by [`Self::deliver`]. With blocks of one the sink is not used.
@@ -1141,11 +1148,26 @@ impl<T: SineTable> Controller<T> {
             self.tick += 1;
         }
         let z = self.u - d;
-        self.reg.update(&self.p.reg, self.u, z);
+        self.z = z;
 
+        // While a mode runs, every sample goes to the estimator task (its prefilters need an
+        // unbroken signal): from the mode's step with what to do with it, else here.
+        let mut fed = false;
         let u_next = match self.mode {
-            Some(Mode::Dive) => self.dive_step(d, z, input_ok, &mut st, sink),
-            Some(Mode::Sve) => self.sve_step(d, z, input_ok, &mut st, sink),
+            Some(Mode::Dive) => {
+                let u = self.dive_step(d, z, input_ok, &mut st, sink, &mut fed);
+                if !fed {
+                    self.feed(sink, z, T::ZERO, 0);
+                }
+                u
+            }
+            Some(Mode::Sve) => {
+                let u = self.sve_step(d, z, input_ok, &mut st, sink, &mut fed);
+                if !fed {
+                    self.feed(sink, z, T::ZERO, 0);
+                }
+                u
+            }
             None => self.u,
         };
         let (u_code, u, clamped) = self.p.u_dac.quantize(u_next);
@@ -1257,48 +1279,36 @@ impl<T: SineTable> Controller<T> {
         self.pending_watch = true;
     }
 
-    /// One estimator sample of two parameters: to the sink (the block's samples), or the
-    /// update itself with blocks of one. Returns the status bits.
+    /// One loop sample for the estimator task, `flags` as [`Sample::flags`]: to the sink with
+    /// blocks (the block's samples), else through the controller's own task at once (the
+    /// prefilters, and the per-sample update when estimating). Returns the status bits of an
+    /// estimating sample (meaningless for the others).
     #[inline(always)]
-    fn estimate2(
-        &mut self,
-        target: Target,
-        block: bool,
-        sink: &mut impl SampleSink<T>,
-        w: T,
-        phi: &[T; 2],
-    ) -> u32 {
-        if block {
-            sink.push(Sample {
-                w,
-                phi: [phi[0], phi[1], T::ZERO],
-            });
+    fn feed(&mut self, sink: &mut impl SampleSink<T>, z: T, r: T, flags: u32) -> u32 {
+        let x = Sample {
+            z,
+            u: self.u,
+            r,
+            flags,
+        };
+        if self.now.last > 0 {
+            sink.push(x);
             self.block_n = self.block_n.wrapping_add(1);
             status::ESTIMATING | self.adopted
         } else {
-            let f = self.task.sample2(target, w, phi);
-            self.theta2 = self.task.estimator2().theta();
-            status::ESTIMATING | f
-        }
-    }
-
-    /// [`Self::estimate2`] for three parameters.
-    #[inline(always)]
-    fn estimate3(
-        &mut self,
-        target: Target,
-        block: bool,
-        sink: &mut impl SampleSink<T>,
-        w: T,
-        phi: &[T; 3],
-    ) -> u32 {
-        if block {
-            sink.push(Sample { w, phi: *phi });
-            self.block_n = self.block_n.wrapping_add(1);
-            status::ESTIMATING | self.adopted
-        } else {
-            let f = self.task.sample3(target, w, phi);
-            self.theta3 = self.task.estimator3().theta();
+            let Some((w, phi)) = self.task.feed(&x) else {
+                return 0;
+            };
+            let target = self.target;
+            let f = if target.two() {
+                let f = self.task.sample2(target, w, &[phi[0], phi[1]]);
+                self.theta2 = self.task.estimator2().theta();
+                f
+            } else {
+                let f = self.task.sample3(target, w, &phi);
+                self.theta3 = self.task.estimator3().theta();
+                f
+            };
             status::ESTIMATING | f
         }
     }
@@ -1325,6 +1335,7 @@ impl<T: SineTable> Controller<T> {
         input_ok: bool,
         st: &mut u32,
         sink: &mut impl SampleSink<T>,
+        fed: &mut bool,
     ) -> T {
         self.dive.t = self.dive.t.saturating_add(1);
         let t = self.dive.t;
@@ -1363,7 +1374,8 @@ impl<T: SineTable> Controller<T> {
             }
             Phase::Indent => {
                 *st |= status::CONTACT;
-                let depth = self.dive.h - self.reg.z_x();
+                // The tip's depth from Z itself (the prefiltered Z/Λ is the task's).
+                let depth = self.dive.h - z;
                 if self.dive_force_limit(d, &mut u, st) {
                     // Retracted.
                 } else if depth >= self.p.dive.indent {
@@ -1384,24 +1396,24 @@ impl<T: SineTable> Controller<T> {
                     self.dive.u_cmd = u;
                     return u + self.exc.next(&self.p.dive.exc);
                 }
-                if input_ok && t >= self.dive.estimate_from {
-                    let h = self.dive.h;
-                    let w = self.reg.w(&self.p.reg);
-                    // `dec_dive > 1`: the running mode's constants are DIVE's.
+                let estimating = input_ok && t >= self.dive.estimate_from;
+                let h = self.dive.h;
+                // The regressor's reference: h (the paper's φ), or the target tip position
+                // z₀ = h − indent (the offset regressor), fixed for the tap.
+                let r = match self.p.dive.regressor {
+                    DiveRegressor::Paper => h,
+                    DiveRegressor::Offset => self.dive.z0,
+                };
+                let f = self.feed(sink, z, r, if estimating { SAMPLE_EST } else { 0 });
+                *fed = true;
+                if estimating {
                     let block = self.now.last > 0;
-                    let (f, th) = match self.p.dive.regressor {
+                    let th = match self.p.dive.regressor {
                         DiveRegressor::Paper => {
-                            let phi = self.reg.phi_dive(h);
-                            let f = self.estimate2(Target::Dive2, block, sink, w, &phi);
                             let th = self.theta2;
-                            (f, [th[0], th[1], T::ZERO])
+                            [th[0], th[1], T::ZERO]
                         }
-                        // Centred at the target tip position z₀ = h − indent (fixed for the tap).
-                        DiveRegressor::Offset => {
-                            let phi = self.reg.phi_sve(self.dive.z0);
-                            let f = self.estimate3(Target::Dive3, block, sink, w, &phi);
-                            (f, self.theta3)
-                        }
+                        DiveRegressor::Offset => self.theta3,
                     };
                     if f & status::EST_DIVERGED != 0 {
                         self.dive.flags |= status::EST_DIVERGED;
@@ -1409,7 +1421,9 @@ impl<T: SineTable> Controller<T> {
                     *st |= f;
                     if t >= self.dive.readout_from {
                         // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
-                        let v = [th[0], th[1], th[2], h - self.reg.z_x()];
+                        // The depth from Z itself: its mean over the read-out is that of Z/Λ
+                        // (unit DC gain) but for the filter's edges and the tones' residue.
+                        let v = [th[0], th[1], th[2], h - z];
                         if block {
                             self.dive.acc.add_held::<3>(v, f);
                         } else {
@@ -1563,6 +1577,7 @@ impl<T: SineTable> Controller<T> {
         input_ok: bool,
         st: &mut u32,
         sink: &mut impl SampleSink<T>,
+        fed: &mut bool,
     ) -> T {
         self.sve.t = self.sve.t.saturating_add(1);
         let t = self.sve.t;
@@ -1594,13 +1609,9 @@ impl<T: SineTable> Controller<T> {
                         SveRegressor::Paper => Target::Sve3,
                     };
                     self.restart_estimator(target, self.p.sve.theta0);
-                    let w = self.reg.w(&self.p.reg);
-                    let phi = self.reg.phi_sve(h);
-                    self.sve.hp = [
-                        HighPass::at_rest(w),
-                        HighPass::at_rest(phi[0]),
-                        HighPass::at_rest(phi[1]),
-                    ];
+                    // The task's high-passes at rest at this sample's w and φ.
+                    self.feed(sink, z, h, SAMPLE_HP_REST);
+                    *fed = true;
                     self.depth = DepthController::new(self.sve.u_cmd);
                     self.exc.set_on(true);
                     self.sve.t = 0;
@@ -1623,7 +1634,7 @@ impl<T: SineTable> Controller<T> {
                 let force = self.p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
                 self.sve.force_slow += self.p.force_slow_weight * (force - self.sve.force_slow);
                 if self.sve.lost {
-                    return self.sve_reapproach(t, st);
+                    return self.sve_reapproach(t, z, st);
                 }
                 *st |= status::CONTACT;
                 if force > self.p.guard_sve.force_max {
@@ -1651,36 +1662,38 @@ impl<T: SineTable> Controller<T> {
                     self.sve_lose_surface();
                 }
                 let mut f = 0;
-                let w = self.reg.w(&self.p.reg);
-                let phi = self.reg.phi_sve(self.sve.z0);
-                // `dec_sve > 1`: the running mode's constants are SVE's.
-                let block = self.now.last > 0;
                 // θ̂₂ ≥ k_min > 0 by projection, so the divisions are safe.
                 let (th, h_hat, depth) = match self.p.sve.regressor {
                     SveRegressor::Decoupled => {
-                        // The high-passes run every sample, so their state stays continuous.
-                        let hp = &mut self.sve.hp;
-                        let wh = hp[0].update(self.p.sve.highpass, w);
-                        let phi_h = [
-                            hp[1].update(self.p.sve.highpass, phi[0]),
-                            hp[2].update(self.p.sve.highpass, phi[1]),
-                        ];
+                        // The task's high-passes run every sample, so their state stays
+                        // continuous.
+                        let flags = if input_ok {
+                            SAMPLE_HP | SAMPLE_EST
+                        } else {
+                            SAMPLE_HP
+                        };
+                        let fe = self.feed(sink, z, self.sve.z0, flags);
                         if input_ok {
-                            f = self.estimate2(Target::Sve2, block, sink, wh, &phi_h);
+                            f = fe;
                         }
                         let th = self.theta2;
                         let depth = force / th[1];
-                        ([th[0], th[1], T::ZERO], self.reg.z_x() + depth, depth)
+                        // The height from Z itself (the prefiltered Z/Λ is the task's): the
+                        // pixel's mean is the same but for the tones' residue.
+                        ([th[0], th[1], T::ZERO], z + depth, depth)
                     }
                     SveRegressor::Paper => {
+                        let fe =
+                            self.feed(sink, z, self.sve.z0, if input_ok { SAMPLE_EST } else { 0 });
                         if input_ok {
-                            f = self.estimate3(Target::Sve3, block, sink, w, &phi);
+                            f = fe;
                         }
                         let th = self.theta3;
                         let h = self.sve.z0 + th[2] / th[1];
                         (th, h, h - z)
                     }
                 };
+                *fed = true;
                 let (u_d, sat) = self
                     .depth
                     .update(&self.p.sve.depth, self.p.sve.depth_eff - depth);
@@ -1720,7 +1733,7 @@ impl<T: SineTable> Controller<T> {
     /// One sample of the SVE re-approach: lower the base at the approach speed until the
     /// force is back (then resume with the depth integrator starting where the contact was
     /// found), give up after the approach's travel. The scan and its pixels go on, flagged.
-    fn sve_reapproach(&mut self, t: u32, st: &mut u32) -> T {
+    fn sve_reapproach(&mut self, t: u32, z: T, st: &mut u32) -> T {
         *st |= status::CONTACT_LOST;
         if !self.sve.left {
             // Wait, holding U, until the tip is off the surface (after a force-limit jump the
@@ -1750,7 +1763,7 @@ impl<T: SineTable> Controller<T> {
             SveRegressor::Decoupled => (th[0], th[1]),
             SveRegressor::Paper => (th3[0], th3[1]),
         };
-        let h = self.reg.z_x();
+        let h = z;
         if self.sve_sequence(t, [c, k, h, T::ZERO], status::CONTACT_LOST) {
             *st |= status::READOUT;
         }

@@ -1,11 +1,13 @@
 //! The estimator off the fast path: the loop hands blocks of samples to an estimator task.
 //!
 //! With a block of N > 1 samples (`estimator.decimation`), [`crate::Controller`]'s per-sample
-//! step only hands each estimating sample's `w` and `φ` ([`Sample`]) to a [`SampleSink`];
-//! every N samples it closes a [`Block`] (a header: restarts, epoch, target, how many samples),
-//! which the estimator task ([`EstimatorTask::run`]: the block sums [`BlockStats`] over the
-//! samples, the block update of [`crate::estimator`] and the divergence watch) turns into a
-//! [`BlockResult`]. On the firmware the task is a lower-priority interrupt fed through two
+//! step hands every sample of a running mode to a [`SampleSink`] as its raw regressor inputs
+//! (Z, U, the reference and what the sample is for: [`Sample`]); the prefilters, the
+//! regressor and the SVE high-passes run in the task ([`EstimatorTask::feed`]), not in the
+//! loop. Every N samples the step closes a [`Block`] (a header: restarts, epoch, target, how
+//! many samples), which the estimator task ([`EstimatorTask::run`]: the samples through the
+//! filters, the block sums [`BlockStats`] over the estimating ones, the block update of
+//! [`crate::estimator`] and the divergence watch) turns into a [`BlockResult`]. On the firmware the task is a lower-priority interrupt fed through two
 //! lock-free queues (samples, headers); on the host it runs in-line, its sums added as the
 //! samples come ([`BlockSums`]). Both follow the same schedule and add the same samples in the
 //! same order, so their results are bit-identical:
@@ -25,7 +27,9 @@
 use crate::controller::status;
 use crate::estimator::{BlockInfo, BlockStats, Estimator, EstimatorParams, UpdateInfo};
 use crate::guard::{GuardParams, Watch};
+use crate::prefilter::HighPass;
 use crate::real::Real;
+use crate::regressor::{Regressor, RegressorParams};
 
 /// Which estimator and constants a block is for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -48,16 +52,33 @@ impl Target {
     }
 }
 
-/// One estimating sample, loop → estimator task: the regressor's output `w` and `φ` (`φ₃ = 0`
-/// for two parameters). The task forms the block's information from these
-/// ([`BlockStats::add`]), so that the loop only writes four numbers per sample.
+/// One loop sample, loop → estimator task: the raw inputs of the regressor, from which the
+/// task forms `w` and `φ` itself (the prefilters, the regressor and the SVE high-passes run
+/// in the task, not in the loop interrupt), and what to do with them ([`SAMPLE_EST`],
+/// [`SAMPLE_HP`], [`SAMPLE_HP_REST`]). The loop hands over every sample while a mode runs,
+/// so the task's filters see an unbroken signal; it adds to the block sums only those
+/// flagged [`SAMPLE_EST`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sample<T> {
-    /// w of `w = θᵀφ`.
-    pub w: T,
-    /// φ (three entries; the third is zero and unused for two parameters).
-    pub phi: [T; 3],
+    /// Z = U − D, the tip position sampled now (internal units).
+    pub z: T,
+    /// U held over the period ending now (the DAC value output one step ago).
+    pub u: T,
+    /// The regressor's reference: the contact height h (DIVE, the paper's regressor) or z₀
+    /// (DIVE offset, SVE); `φ = [−s·Z/Λ, r − Z/Λ, 1]`.
+    pub r: T,
+    /// [`SAMPLE_EST`] | [`SAMPLE_HP`] | [`SAMPLE_HP_REST`].
+    pub flags: u32,
 }
+
+/// [`Sample::flags`]: an estimating sample, its `w` and `φ` go into the block sums.
+pub const SAMPLE_EST: u32 = 1;
+/// [`Sample::flags`]: `w` and `φ` through the SVE high-passes (the decoupled regressor),
+/// which run on every such sample, estimating or not.
+pub const SAMPLE_HP: u32 = 2;
+/// [`Sample::flags`]: the high-passes set at rest at this sample's `w` and `φ` (the SVE
+/// contact); never estimating.
+pub const SAMPLE_HP_REST: u32 = 4;
 
 /// Where the loop puts its estimating samples while blocks are in use (N > 1): on the
 /// firmware the producer end of a queue to the estimator task, on the host
@@ -114,6 +135,8 @@ pub struct BlockSums<T> {
     pub s2: BlockStats<T, 2>,
     /// Three parameters.
     pub s3: BlockStats<T, 3>,
+    /// Estimating samples added.
+    pub n: u32,
 }
 
 impl<T: Real> Default for BlockSums<T> {
@@ -121,6 +144,7 @@ impl<T: Real> Default for BlockSums<T> {
         Self {
             s2: BlockStats::default(),
             s3: BlockStats::default(),
+            n: 0,
         }
     }
 }
@@ -128,22 +152,25 @@ impl<T: Real> Default for BlockSums<T> {
 impl<T: Real> Default for Sample<T> {
     fn default() -> Self {
         Self {
-            w: T::ZERO,
-            phi: [T::ZERO; 3],
+            z: T::ZERO,
+            u: T::ZERO,
+            r: T::ZERO,
+            flags: 0,
         }
     }
 }
 
 impl<T: Real> BlockSums<T> {
-    /// One sample of a block for `target`, with the task's constants `acc`
-    /// ([`EstimatorTask::acc`]).
+    /// One estimating sample (`w`, `φ` as [`EstimatorTask::feed`] gives them) of a block for
+    /// `target`, with the task's constants `acc` ([`EstimatorTask::acc`]).
     #[inline(always)]
-    pub fn add(&mut self, target: Target, acc: (T, T), x: &Sample<T>) {
+    pub fn add(&mut self, target: Target, acc: (T, T), w: T, phi: &[T; 3]) {
         if target.two() {
-            self.s2.add(acc.0, acc.1, x.w, &[x.phi[0], x.phi[1]]);
+            self.s2.add(acc.0, acc.1, w, &[phi[0], phi[1]]);
         } else {
-            self.s3.add(acc.0, acc.1, x.w, &x.phi);
+            self.s3.add(acc.0, acc.1, w, phi);
         }
+        self.n = self.n.wrapping_add(1);
     }
 
     /// Empty again.
@@ -151,6 +178,7 @@ impl<T: Real> BlockSums<T> {
     pub fn clear(&mut self) {
         self.s2.clear();
         self.s3.clear();
+        self.n = 0;
     }
 }
 
@@ -165,6 +193,9 @@ pub struct BlockResult<T> {
     pub flags: u32,
     /// The block's epoch.
     pub epoch: u32,
+    /// The block had estimating samples and θ̂ was updated; else (a block of samples that
+    /// only fed the filters, or one that only restarts) the loop has nothing to adopt.
+    pub updated: bool,
 }
 
 /// The estimators' constants, per mode.
@@ -186,6 +217,10 @@ pub struct TaskParams<T> {
     pub acc_dive: (T, T),
     /// SVE: 1/T and α/T.
     pub acc_sve: (T, T),
+    /// The regressor: the cantilever and the prefilters.
+    pub reg: RegressorParams<T>,
+    /// The SVE high-passes' pole factor.
+    pub highpass: T,
 }
 
 /// The estimators and their divergence watch: what the lower-priority task owns.
@@ -195,6 +230,10 @@ pub struct EstimatorTask<T> {
     est2: Estimator<T, 2>,
     est3: Estimator<T, 3>,
     watch: Watch<T>,
+    /// The prefilters of Z and U (every sample the loop hands over).
+    reg: Regressor<T>,
+    /// The SVE high-passes of w, φ₁, φ₂ (decoupled regressor).
+    hp: [HighPass<T>; 3],
 }
 
 /// Status bits of an update.
@@ -212,15 +251,63 @@ pub(crate) fn est_flags(info: UpdateInfo) -> u32 {
     f
 }
 
+/// [`EstimatorTask::feed`] on filter states passed apart, so that a block's loop
+/// ([`EstimatorTask::run`]) can keep them in locals: in the task's memory, the queue's atomics
+/// between two samples would make every sample load and store them.
+#[inline(always)]
+fn feed_filters<T: Real>(
+    p: &TaskParams<T>,
+    reg: &mut Regressor<T>,
+    hp: &mut [HighPass<T>; 3],
+    x: &Sample<T>,
+) -> Option<(T, [T; 3])> {
+    reg.update(&p.reg, x.u, x.z);
+    if x.flags == 0 {
+        return None;
+    }
+    let w = reg.w(&p.reg);
+    let phi = reg.phi_sve(x.r);
+    if x.flags & SAMPLE_HP_REST != 0 {
+        *hp = [
+            HighPass::at_rest(w),
+            HighPass::at_rest(phi[0]),
+            HighPass::at_rest(phi[1]),
+        ];
+        return None;
+    }
+    let (w, phi) = if x.flags & SAMPLE_HP != 0 {
+        let a = p.highpass;
+        let wh = hp[0].update(a, w);
+        (
+            wh,
+            [hp[1].update(a, phi[0]), hp[2].update(a, phi[1]), phi[2]],
+        )
+    } else {
+        (w, phi)
+    };
+    (x.flags & SAMPLE_EST != 0).then_some((w, phi))
+}
+
 impl<T: Real> EstimatorTask<T> {
-    /// The estimators at DIVE's θ̂₀ with P₀.
-    pub fn new(p: TaskParams<T>, theta0: [T; 3]) -> Self {
+    /// The estimators at DIVE's θ̂₀ with P₀, the prefilters at rest with the tip and the
+    /// base at `u0`.
+    pub fn new(p: TaskParams<T>, theta0: [T; 3], u0: T) -> Self {
         Self {
             est2: Estimator::new(&p.dive2, [theta0[0], theta0[1]]),
             est3: Estimator::new(&p.dive3, theta0),
             watch: Watch::default(),
+            reg: Regressor::at_rest(u0, u0),
+            hp: [HighPass::default(); 3],
             p,
         }
+    }
+
+    /// One sample through the prefilters (and, flagged, the high-passes): its `w` and `φ`
+    /// when it is an estimating one ([`SAMPLE_EST`]). The operations of the loop's former
+    /// per-sample regressor, in its order.
+    #[inline(always)]
+    pub fn feed(&mut self, x: &Sample<T>) -> Option<(T, [T; 3])> {
+        feed_filters(&self.p, &mut self.reg, &mut self.hp, x)
     }
 
     /// The two-parameter estimator.
@@ -297,40 +384,66 @@ impl<T: Real> EstimatorTask<T> {
         }
     }
 
-    /// One block: the block sums over its samples (`samples` yields them in order; at most
-    /// `b.samples` are taken), then the restarts, the block update and the divergence watch.
-    /// The sums are formed here, in registers, sample by sample as the loop handed them over:
-    /// the same additions in the same order as [`BlockSums::add`] on the host.
+    /// One block: `samples` yields the samples queued for it in order, first the `b.skip` to
+    /// discard (they only feed the filters), then the block's `b.samples` (the estimating
+    /// ones also into the block sums); at most `b.skip + b.samples` are taken. Then the
+    /// restarts, the block update (when the block had an estimating sample) and the
+    /// divergence watch. The sums are formed here, in registers, sample by sample as the loop
+    /// handed them over: the same operations in the same order as [`Self::feed`] and
+    /// [`BlockSums::add`] on the host.
     #[inline(always)]
     pub fn run(
         &mut self,
         b: &Block<T>,
         samples: impl Iterator<Item = Sample<T>>,
     ) -> BlockResult<T> {
+        let mut samples = samples.take(b.skip.wrapping_add(b.samples) as usize);
         let target = b.target;
         let (ip, ai) = self.acc(target);
-        let n = b.samples as usize;
-        let bi = if target.two() {
-            let mut s = BlockStats::<T, 2>::default();
-            for x in samples.take(n) {
-                s.add(ip, ai, x.w, &[x.phi[0], x.phi[1]]);
+        let p = &self.p;
+        let mut n = 0u32;
+        if target.two() {
+            // The filters in locals for the block (see `feed_filters`).
+            let (mut reg, mut hp) = (self.reg, self.hp);
+            for x in samples.by_ref().take(b.skip as usize) {
+                feed_filters(p, &mut reg, &mut hp, &x);
             }
+            let mut s = BlockStats::<T, 2>::default();
+            for x in samples {
+                if let Some((w, phi)) = feed_filters(p, &mut reg, &mut hp, &x) {
+                    s.add(ip, ai, w, &[phi[0], phi[1]]);
+                    n += 1;
+                }
+            }
+            (self.reg, self.hp) = (reg, hp);
             // A copy for the update, which takes the sums by reference: the loop's own stay
             // in registers (passed by reference themselves, they are kept in memory and
             // loaded and stored every sample).
             let s = core::hint::black_box(s);
             self.restarts(b);
-            (b.samples != 0).then(|| self.update2(target, &s))
+            let bi = (n != 0).then(|| self.update2(target, &s));
+            self.finish(b, bi)
         } else {
+            // The filters stay in the task's memory: in locals, with the three-parameter
+            // sums and the coefficients they outnumber the FPU's registers, and the spills
+            // cost more than the loads and stores they save (`cargo xtask bench`: 4 184 →
+            // 5 415 per DIVE block, where the two-parameter SVE block gains 5 040 → 4 572).
+            let (reg, hp) = (&mut self.reg, &mut self.hp);
+            for x in samples.by_ref().take(b.skip as usize) {
+                feed_filters(p, reg, hp, &x);
+            }
             let mut s = BlockStats::<T, 3>::default();
-            for x in samples.take(n) {
-                s.add(ip, ai, x.w, &x.phi);
+            for x in samples {
+                if let Some((w, phi)) = feed_filters(p, reg, hp, &x) {
+                    s.add(ip, ai, w, &phi);
+                    n += 1;
+                }
             }
             let s = core::hint::black_box(s);
             self.restarts(b);
-            (b.samples != 0).then(|| self.update3(target, &s))
-        };
-        self.finish(b, bi)
+            let bi = (n != 0).then(|| self.update3(target, &s));
+            self.finish(b, bi)
+        }
     }
 
     /// One block whose sums are formed already ([`BlockSums`], the host's in-line task):
@@ -339,7 +452,7 @@ impl<T: Real> EstimatorTask<T> {
     pub fn run_sums(&mut self, b: &Block<T>, sums: &BlockSums<T>) -> BlockResult<T> {
         let target = b.target;
         self.restarts(b);
-        let bi = if b.samples == 0 {
+        let bi = if b.samples == 0 || sums.n == 0 {
             None
         } else if target.two() {
             Some(self.update2(target, &sums.s2))
@@ -386,6 +499,7 @@ impl<T: Real> EstimatorTask<T> {
     fn finish(&mut self, b: &Block<T>, bi: Option<BlockInfo<T>>) -> BlockResult<T> {
         let target = b.target;
         let mut flags = 0;
+        let updated = bi.is_some();
         if let Some(bi) = bi {
             flags = est_flags(bi.info);
             flags |= self.watch(target, bi.info, bi.e_ms, bi.w_ms, true);
@@ -395,6 +509,7 @@ impl<T: Real> EstimatorTask<T> {
             theta: self.theta(target),
             flags,
             epoch: b.epoch,
+            updated,
         }
     }
 

@@ -196,7 +196,11 @@ fn firmware_schedule_matches_step_bit_for_bit() {
                     fw.deliver(&r);
                 }
                 fw.close_block(|b| {
-                    assert_eq!(!b.target.two(), want_three, "{mode:?}: target");
+                    // Before the first restart (the mode's approach) the blocks only feed the
+                    // task's filters, for the estimator the controller was built with.
+                    if b.epoch > 0 {
+                        assert_eq!(!b.target.two(), want_three, "{mode:?}: target");
+                    }
                     let samples = b.samples;
                     assert!(samples >= 1 && samples <= n, "{mode:?}: {samples} samples");
                     assert!(
@@ -205,7 +209,6 @@ fn firmware_schedule_matches_step_bit_for_bit() {
                         queue.len(),
                         b.skip
                     );
-                    queue.drain(..b.skip as usize);
                     skipped += b.skip;
                     result = Some(task.run(&b, queue.drain(..)));
                     blocks += 1;
