@@ -132,7 +132,8 @@ class Effect:
                            linearly to 0 over `reach` below the surface before they break
       surface-attraction   van der Waals sphere-plane form -a * (l / (gap + l))^2, -a in
                            contact
-      stress-relaxation    a Maxwell arm in parallel: dF_m/dt = a * dF_el/dt - F_m / tau
+      stress-relaxation    a Maxwell arm in parallel: dF_m/dt = a * dF_el/dt - F_m / tau,
+                           on the tip while the bed touches it
       hydrodynamic-drag    -a * ((1 - w) dZ/dt + w dU/dt): the lever body moves between
                            tip and base
       baseline-tilt        measured D gains a * (U - U_ref) (optical crosstalk)
@@ -247,7 +248,10 @@ class Model:
             fe *= g
         f = fe + fd
         if kind == "stress-relaxation":
-            f += x[self.ix["fm"]]
+            # The arm acts through the contact: once the tip has left the bed no sample
+            # force reaches it, and the arm relaxes on its own (its rate has no slope then).
+            if mask.any():
+                f += x[self.ix["fm"]]
         elif kind == "adhesion":
             a, onset, reach = eff.amplitude, eff.shape["onset_m"], eff.shape["reach_m"]
             if delta > 0.0:
