@@ -358,6 +358,8 @@ pub struct Trace {
     pub force: Vec<f64>,
     /// Effective base position after the effects' piezo hooks (nm).
     pub u_eff: Vec<f64>,
+    /// Tip velocity Ż (nm/µs).
+    pub v: Vec<f64>,
 }
 
 /// Volume of the cap below the bed's surface (nm³) at apex depth δ (see
@@ -422,6 +424,7 @@ pub fn simulate(
         tr.depth.reserve(n);
         tr.force.reserve(n);
         tr.u_eff.reserve(n);
+        tr.v.reserve(n);
     }
     let (k_lin, c_lin) = effects.iter().fold((0.0, 0.0), |(k, c), e| {
         let (ek, ec) = e.linear_terms();
@@ -527,11 +530,44 @@ pub fn simulate(
                 tr.depth.push(ct.h - z);
                 tr.force.push(ctx.contact_force_nn);
                 tr.u_eff.push(u_eff_prev);
+                tr.v.push(v);
             }
         }
         out.push(d + nom.offset);
     }
     out
+}
+
+/// The reading of the model that [`simulate`] gave `base` (with its states `trace`) once
+/// `effect` is added last, for an effect that acts only on the reading
+/// ([`crate::plant::effects::EffectKind::reading_only`]): the states are those of the model
+/// without it, so the effect's hooks replay on them — what a full simulation computes, at the
+/// cost of the effect's own arithmetic (a second mode's shape grid is ~150 such readings).
+pub fn reading_with(
+    inst: &Instrument,
+    nom: &Nominal,
+    effect: &mut dyn Effect,
+    data: &Data,
+    trace: &Trace,
+    base: &[f64],
+) -> Vec<f64> {
+    let n = data.len().min(trace.v.len()).min(base.len());
+    let geo = &BedGeometry::new(nom.bed, inst.r_tip);
+    let dt_first = if n > 1 { data.t[1] - data.t[0] } else { 1.0 };
+    (0..n)
+        .map(|i| {
+            let ct = nom.contacts[data.unit[i].min(nom.contacts.len() - 1)];
+            let dt = if i == 0 {
+                dt_first
+            } else {
+                data.t[i] - data.t[i - 1]
+            };
+            let ctx = context(ct, geo, data.t[i], dt, trace.z[i], trace.v[i], data.u[i]);
+            let d = effect.measured_deflection_nm(&ctx, base[i] - nom.offset);
+            effect.end_of_step(&ctx);
+            d + nom.offset
+        })
+        .collect()
 }
 
 /// What the effects see at time `t` with the tip at (Z, Ż) and the commanded U.

@@ -28,7 +28,7 @@
 
 use super::candidates::{Candidate, Env};
 use super::fit::{levenberg_marquardt, linear_least_squares, ssr, LmOptions, Param};
-use super::model::{simulate, Bed, Input, Nominal, Trace};
+use super::model::{reading_with, simulate, Bed, Input, Nominal, Trace};
 use super::noise::{held_out_test, HeldOut, NoiseModel, MAX_ORDER};
 use super::problem::Problem;
 use crate::numerics::golden_section;
@@ -561,8 +561,19 @@ impl Problem {
         polish_below: Option<f64>,
         evals: &mut usize,
     ) -> Option<(Model, f64)> {
-        let sim_base = self.fit_sim(base, env)?;
+        // An effect that acts only on the reading leaves the states alone: its grid's
+        // readings replay on the base's states instead of simulating (one traced simulation).
+        let mut base_trace = Trace::default();
+        let base_full = self.simulate(
+            base,
+            env,
+            cand.kind.reading_only().then_some(&mut base_trace),
+        );
         *evals += 1;
+        let sim_base = self.on_fit(&base_full);
+        if !sim_base.iter().all(|x| x.is_finite()) {
+            return None;
+        }
         let amp_idx: Vec<usize> = (0..cand.params.len())
             .filter(|&j| !cand.params[j].shape)
             .collect();
@@ -598,10 +609,21 @@ impl Problem {
                 }
                 let probe = cand.params[j].grid[0];
                 v[j] = probe;
-                let mut mm = base.clone();
-                mm.effects.push((cand.clone(), v));
-                let sim = self.fit_sim(&mm, env)?;
-                *evals += 1;
+                let sim = match self.reading_added(base, env, cand, &v, &base_full, &base_trace) {
+                    Some(full) => {
+                        let s = self.on_fit(&full);
+                        if !s.iter().all(|x| x.is_finite()) {
+                            return None;
+                        }
+                        s
+                    }
+                    None => {
+                        let mut mm = base.clone();
+                        mm.effects.push((cand.clone(), v));
+                        *evals += 1;
+                        self.fit_sim(&mm, env)?
+                    }
+                };
                 // Zero in the prior's rows (the effect does not touch the calibrations).
                 let mut col: Vec<f64> = sim
                     .iter()
@@ -785,6 +807,33 @@ impl Problem {
             ssr = s2;
         }
         Some((m, ssr))
+    }
+
+    /// The reading (nm, every sample) of `base` with `cand` at values `v` added last, from
+    /// `base`'s reading `base_sim` and its states `trace`, when the effect acts only on the
+    /// reading ([`EffectKind::reading_only`]: what the simulation would give, to rounding);
+    /// `None` for an effect that needs a simulation.
+    pub fn reading_added(
+        &self,
+        base: &Model,
+        env: &Env,
+        cand: &Candidate,
+        v: &[f64],
+        base_sim: &[f64],
+        trace: &Trace,
+    ) -> Option<Vec<f64>> {
+        if !cand.kind.reading_only() || trace.v.len() != base_sim.len() {
+            return None;
+        }
+        let mut e = cand.spec(v, env).build();
+        Some(reading_with(
+            &self.inst,
+            &base.nominal,
+            e.as_mut(),
+            &self.data,
+            trace,
+            base_sim,
+        ))
     }
 
     fn fit_sim(&self, m: &Model, env: &Env) -> Option<Vec<f64>> {

@@ -166,6 +166,15 @@ impl EffectKind {
         }
     }
 
+    /// Whether the effect acts only on what the detector reports (hooks 4 and 5), never on the
+    /// cantilever's motion: the states of a model with it are those without it.
+    pub fn reading_only(self) -> bool {
+        matches!(
+            self,
+            EffectKind::BaselineTilt | EffectKind::ThermalDrift | EffectKind::SecondEigenmode
+        )
+    }
+
     /// From the identifier.
     pub fn parse(s: &str) -> Option<EffectKind> {
         EffectKind::ALL.into_iter().find(|k| k.as_str() == s.trim())
