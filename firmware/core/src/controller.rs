@@ -410,19 +410,18 @@ const BITS: FaultBits = FaultBits {
 /// With the block estimator θ̂ changes only when a block's result is adopted, so its entries
 /// (the first `L` of a sample, [`Self::add_held`]) need no per-sample sums: the loop counts
 /// the samples that saw the same θ̂ (`pending`) and [`Self::settle`] adds them as
-/// `count·(θ̂ − base)` once per block, before θ̂ changes. [`Self::add`] is the per-sample form,
-/// for the per-sample law (blocks of one), where θ̂ changes every sample.
+/// `count·(θ̂ − base)` once per block, before θ̂ changes, with θ̂ as it stood for them (the
+/// loop's own θ̂ then, so the loop neither selects nor stores θ̂ per sample). [`Self::add`] is
+/// the per-sample form, for the per-sample law (blocks of one), where θ̂ changes every sample.
 #[derive(Clone, Copy, Debug, Default)]
 struct Accumulator<T> {
     base: [T; 4],
     sum: [T; 4],
     /// Samples added, less the `pending` ones ([`Self::count`]).
     n: u32,
-    /// Samples since the θ̂ entries were last added to `sum`, all with the values `held`
-    /// (counted into `n` then: one counter per sample, not two).
+    /// Samples since the θ̂ entries were last added to `sum`, all with the θ̂ that
+    /// [`Self::settle`] is given (counted into `n` then: one counter per sample, not two).
     pending: u32,
-    /// The θ̂ entries of the pending samples (the others equal `base`, so they add 0).
-    held: [T; 3],
     flags: u32,
 }
 
@@ -439,16 +438,13 @@ impl<T: crate::Real> Accumulator<T> {
         self.flags |= flags;
     }
 
-    /// One sample whose first `L` entries are θ̂ as it stands until the next [`Self::settle`].
+    /// One sample whose first `L` entries are θ̂ as it stands until the next [`Self::settle`]:
+    /// only `v[L..]` is read (the θ̂ entries come with the settle).
     #[inline(always)]
     fn add_held<const L: usize>(&mut self, v: [T; 4], flags: u32) {
-        if self.pending == 0 {
-            if self.n == 0 {
-                self.base = v;
-                self.held = [v[0], v[1], v[2]];
-            }
-            for (h, x) in self.held.iter_mut().zip(v).take(L) {
-                *h = x;
+        if self.pending == 0 && self.n == 0 {
+            for i in L.min(4)..4 {
+                self.base[i] = v[i];
             }
         }
         for i in L.min(4)..4 {
@@ -464,22 +460,29 @@ impl<T: crate::Real> Accumulator<T> {
         self.n + self.pending
     }
 
-    /// The pending samples' θ̂ entries into the sums: before θ̂ changes.
+    /// The pending samples' θ̂ entries into the sums, `th` the θ̂ they saw (the first `L`
+    /// entries used): before θ̂ changes. The first samples' θ̂ is the base, as in [`Self::add`].
     #[inline(always)]
-    fn settle(&mut self) {
+    fn settle<const L: usize>(&mut self, th: [T; 3]) {
         if self.pending > 0 {
+            if self.n == 0 {
+                for i in 0..L.min(3) {
+                    self.base[i] = th[i];
+                }
+            }
             let count = T::from_i32(self.pending as i32);
-            for i in 0..3 {
-                self.sum[i] += (self.held[i] - self.base[i]) * count;
+            for i in 0..L.min(3) {
+                self.sum[i] += (th[i] - self.base[i]) * count;
             }
             self.n += self.pending;
             self.pending = 0;
         }
     }
 
-    fn mean(&self) -> [T; 4] {
+    /// The means, `th` the θ̂ of the samples not settled yet ([`Self::settle`]).
+    fn mean<const L: usize>(&self, th: [T; 3]) -> [T; 4] {
         let mut acc = *self;
-        acc.settle();
+        acc.settle::<L>(th);
         let mut m = acc.base;
         if acc.n > 0 {
             let inv = T::ONE / T::from_i32(acc.n as i32);
@@ -514,6 +517,9 @@ struct DiveState<T> {
     y_to: T,
     h: T,
     z0: T,
+    /// The regressor's reference for the tap, set with the dwell: h (the paper's φ), or the
+    /// target tip position z₀ = h − indent (the offset regressor).
+    r: T,
     d_free: T,
     theta_warm: [T; 3],
     acc: Accumulator<T>,
@@ -791,6 +797,7 @@ impl<T: SineTable> Controller<T> {
             y_to: y,
             h: T::ZERO,
             z0: T::ZERO,
+            r: T::ZERO,
             d_free: T::ZERO,
             theta_warm: p.dive.theta0,
             acc: Accumulator::default(),
@@ -1058,8 +1065,7 @@ impl<T: SineTable> Controller<T> {
             return;
         }
         // The read-out sums take the samples of the θ̂ about to be replaced.
-        self.dive.acc.settle();
-        self.sve.acc.settle();
+        self.settle_readouts();
         if r.target.two() {
             self.theta2 = [r.theta[0], r.theta[1]];
         } else {
@@ -1069,6 +1075,32 @@ impl<T: SineTable> Controller<T> {
         if r.flags & status::EST_DIVERGED != 0 && self.mode == Some(Mode::Dive) {
             self.dive.flags |= status::EST_DIVERGED;
         }
+    }
+
+    /// θ̂ as the DIVE read-out averages it: [c, k, 0] (the paper's regressor) or [c, k, k·(h − z₀)].
+    #[inline(always)]
+    fn dive_theta(&self) -> [T; 3] {
+        match self.p.dive.regressor {
+            DiveRegressor::Paper => [self.theta2[0], self.theta2[1], T::ZERO],
+            DiveRegressor::Offset => self.theta3,
+        }
+    }
+
+    /// θ̂ as the SVE pixels average it (c and k: the first two entries).
+    #[inline(always)]
+    fn sve_theta(&self) -> [T; 3] {
+        match self.p.sve.regressor {
+            SveRegressor::Decoupled => [self.theta2[0], self.theta2[1], T::ZERO],
+            SveRegressor::Paper => self.theta3,
+        }
+    }
+
+    /// The read-out sums take their pending samples' θ̂ (before θ̂ changes).
+    #[inline(always)]
+    fn settle_readouts(&mut self) {
+        let (d, v) = (self.dive_theta(), self.sve_theta());
+        self.dive.acc.settle::<3>(d);
+        self.sve.acc.settle::<2>(v);
     }
 
     /// SVE: the static tip force low-passed below the tones, as the surface check sees it (N).
@@ -1256,8 +1288,7 @@ impl<T: SineTable> Controller<T> {
 
     /// A new tap or scan: the estimator at θ̂₀ with P₀, the divergence watch restarted.
     fn restart_estimator(&mut self, target: Target, theta0: [T; 3]) {
-        self.dive.acc.settle();
-        self.sve.acc.settle();
+        self.settle_readouts();
         self.task.restart(target, theta0);
         self.task.restart_watch();
         self.theta2 = self.task.estimator2().theta();
@@ -1398,38 +1429,37 @@ impl<T: SineTable> Controller<T> {
                 }
                 let estimating = input_ok && t >= self.dive.estimate_from;
                 let h = self.dive.h;
-                // The regressor's reference: h (the paper's φ), or the target tip position
-                // z₀ = h − indent (the offset regressor), fixed for the tap.
-                let r = match self.p.dive.regressor {
-                    DiveRegressor::Paper => h,
-                    DiveRegressor::Offset => self.dive.z0,
-                };
-                let f = self.feed(sink, z, r, if estimating { SAMPLE_EST } else { 0 });
+                // The regressor's reference (`DiveState::r`, fixed for the tap).
+                let f = self.feed(
+                    sink,
+                    z,
+                    self.dive.r,
+                    if estimating { SAMPLE_EST } else { 0 },
+                );
                 *fed = true;
                 if estimating {
-                    let block = self.now.last > 0;
-                    let th = match self.p.dive.regressor {
-                        DiveRegressor::Paper => {
-                            let th = self.theta2;
-                            [th[0], th[1], T::ZERO]
-                        }
-                        DiveRegressor::Offset => self.theta3,
-                    };
-                    if f & status::EST_DIVERGED != 0 {
-                        self.dive.flags |= status::EST_DIVERGED;
-                    }
                     *st |= f;
-                    if t >= self.dive.readout_from {
-                        // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
-                        // The depth from Z itself: its mean over the read-out is that of Z/Λ
-                        // (unit DC gain) but for the filter's edges and the tones' residue.
-                        let v = [th[0], th[1], th[2], h - z];
-                        if block {
+                    // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
+                    // The depth from Z itself: its mean over the read-out is that of Z/Λ
+                    // (unit DC gain) but for the filter's edges and the tones' residue.
+                    if self.now.last > 0 {
+                        // Blocks: f is ESTIMATING and the flags of a result adopted at this
+                        // sample, whose divergence `deliver` put into the tap's flags
+                        // already; the read-out's θ̂ entries come with `settle` per block.
+                        if t >= self.dive.readout_from {
+                            let v = [T::ZERO, T::ZERO, T::ZERO, h - z];
                             self.dive.acc.add_held::<3>(v, f);
-                        } else {
-                            self.dive.acc.add(v, f);
+                            *st |= status::READOUT;
                         }
-                        *st |= status::READOUT;
+                    } else {
+                        if f & status::EST_DIVERGED != 0 {
+                            self.dive.flags |= status::EST_DIVERGED;
+                        }
+                        if t >= self.dive.readout_from {
+                            let v = self.dive_theta();
+                            self.dive.acc.add([v[0], v[1], v[2], h - z], f);
+                            *st |= status::READOUT;
+                        }
                     }
                 }
                 // t + ramp ≥ dwell_end; dwell_end ≥ ramp_from, so the end is inside.
@@ -1500,6 +1530,10 @@ impl<T: SineTable> Controller<T> {
         self.dive.readout_from = readout_from.max(estimate_from);
         self.dive.acc.clear();
         self.dive.z0 = self.dive.h - p.indent;
+        self.dive.r = match p.regressor {
+            DiveRegressor::Paper => self.dive.h,
+            DiveRegressor::Offset => self.dive.z0,
+        };
         let target = match p.regressor {
             DiveRegressor::Paper => Target::Dive2,
             DiveRegressor::Offset => Target::Dive3,
@@ -1511,8 +1545,9 @@ impl<T: SineTable> Controller<T> {
 
     fn finish_tap(&mut self, contact: bool) {
         let p = self.p.dive;
+        let th = self.dive_theta();
         let s = &mut self.dive;
-        let m = s.acc.mean();
+        let m = s.acc.mean::<3>(th);
         let tap = s.tap;
         // In internal units: `take_record` converts to SI.
         let rec = TapRecord {
@@ -1849,8 +1884,9 @@ impl<T: SineTable> Controller<T> {
 
     fn finish_pixel(&mut self, forward: bool) {
         let p = self.p.sve;
+        let th = self.sve_theta();
         let s = &mut self.sve;
-        let m = s.acc.mean();
+        let m = s.acc.mean::<2>(th);
         let n = s.acc.count().max(1);
         let pixel = if forward {
             s.pixel
@@ -1881,9 +1917,14 @@ impl<T: SineTable> Controller<T> {
 mod accumulator_tests {
     use super::Accumulator;
 
-    /// Means equal to rounding (1e-12 relative), entry by entry.
-    fn assert_means_equal(a: &Accumulator<f64>, b: &Accumulator<f64>) {
-        let (a, b) = (a.mean(), b.mean());
+    /// Means equal to rounding (1e-12 relative), entry by entry: `a` per sample, `b` held
+    /// with θ̂ `th` since its last settle.
+    fn assert_means_equal<const L: usize>(
+        a: &Accumulator<f64>,
+        b: &Accumulator<f64>,
+        th: [f64; 3],
+    ) {
+        let (a, b) = (a.mean::<L>([f64::NAN; 3]), b.mean::<L>(th));
         for i in 0..4 {
             assert!(
                 (a[i] - b[i]).abs() <= 1e-12 * a[i].abs().max(1.0),
@@ -1908,11 +1949,12 @@ mod accumulator_tests {
                 let x = 0.37 * f64::from(k) - 1e-3 * f64::from(k * k % 97);
                 let v = [theta[0], theta[1], theta[2], x];
                 per_sample.add(v, k & 3);
-                held.add_held::<3>(v, k & 3);
+                // The held entries are not read (NaN would show): they come with `settle`.
+                held.add_held::<3>([f64::NAN, f64::NAN, f64::NAN, x], k & 3);
                 k += 1;
             }
             // A block's result adopted: θ̂ moves; the held sums take their samples first.
-            held.settle();
+            held.settle::<3>(theta);
             theta = [
                 theta[0] * 1.01 + 0.2,
                 theta[1] - 0.7,
@@ -1923,24 +1965,28 @@ mod accumulator_tests {
         for _ in 0..13 {
             let v = [theta[0], theta[1], theta[2], 2.5];
             per_sample.add(v, 0);
-            held.add_held::<3>(v, 0);
+            held.add_held::<3>([f64::NAN, f64::NAN, f64::NAN, 2.5], 0);
         }
         assert_eq!(
             (per_sample.count(), per_sample.flags),
             (held.count(), held.flags)
         );
-        assert_means_equal(&per_sample, &held);
+        assert_means_equal::<3>(&per_sample, &held, theta);
         // An SVE-style accumulator (two held entries): the third and fourth per sample.
         let (mut p2, mut h2) = (Accumulator::<f64>::default(), Accumulator::<f64>::default());
-        for k in 0..100u32 {
-            if k % 32 == 0 {
-                h2.settle();
-            }
+        let theta2 = |k: u32| {
             let c = 1.0 + f64::from(k / 32);
-            let v = [c, 2.0 * c, f64::from(k) * 0.1, -f64::from(k)];
-            p2.add(v, 0);
-            h2.add_held::<2>(v, 0);
+            [c, 2.0 * c, f64::NAN]
+        };
+        for k in 0..100u32 {
+            if k % 32 == 0 && k > 0 {
+                h2.settle::<2>(theta2(k - 1));
+            }
+            let th = theta2(k);
+            let (h, d) = (f64::from(k) * 0.1, -f64::from(k));
+            p2.add([th[0], th[1], h, d], 0);
+            h2.add_held::<2>([f64::NAN, f64::NAN, h, d], 0);
         }
-        assert_means_equal(&p2, &h2);
+        assert_means_equal::<2>(&p2, &h2, theta2(99));
     }
 }
