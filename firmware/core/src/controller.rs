@@ -581,6 +581,10 @@ pub struct Controller<T> {
     now: ModeNow<T>,
     /// Status bits of the result adopted this sample.
     adopted: u32,
+    /// The status word's phase bits and `RECORD_READY`, set where the phase or the record
+    /// changes ([`Self::set_phase`], [`Self::set_record`]): one load per sample instead of
+    /// testing the record and shifting the phase.
+    status_hold: u32,
     guard: Guard<T>,
     /// Z = U − D of the last sample (the tip position, not prefiltered: the prefilters run in
     /// the estimator task).
@@ -864,6 +868,7 @@ impl<T: SineTable> Controller<T> {
             mode: None,
             now,
             phase: Phase::Idle,
+            status_hold: (Phase::Idle as u32) << status::PHASE_SHIFT,
             y_settled: false,
             u,
             u_code,
@@ -920,7 +925,7 @@ impl<T: SineTable> Controller<T> {
         match cmd {
             Command::Stop => {
                 self.set_mode(None);
-                self.phase = Phase::Idle;
+                self.set_phase(Phase::Idle);
                 self.exc.silence();
             }
             Command::Start(Mode::Dive) => {
@@ -937,7 +942,7 @@ impl<T: SineTable> Controller<T> {
                 self.dive.theta_warm = p.theta0;
                 self.dive.flags = 0;
                 self.exc.silence();
-                self.phase = Phase::Move;
+                self.set_phase(Phase::Move);
             }
             Command::Start(Mode::Sve) => {
                 self.set_mode(Some(Mode::Sve));
@@ -947,7 +952,7 @@ impl<T: SineTable> Controller<T> {
                 self.dive.x_from = self.x;
                 self.dive.y_from = self.y;
                 self.exc.silence();
-                self.phase = Phase::Move;
+                self.set_phase(Phase::Move);
             }
         }
     }
@@ -966,6 +971,7 @@ impl<T: SineTable> Controller<T> {
     #[inline]
     pub fn take_record(&mut self) -> Option<Record<T>> {
         let (to_m, to_si) = (self.p.to_m, self.p.damping_to_si);
+        self.status_hold &= !status::RECORD_READY;
         self.record.take().map(|r| r.scaled(to_m, to_si))
     }
 
@@ -973,6 +979,7 @@ impl<T: SineTable> Controller<T> {
     /// named `_m` hold nm, `offset_n` nN, `c_ns_per_m` nN·µs/nm): what a fixed-point caller
     /// reads, as no Q format holds the SI factors (see [`crate::fixed`]).
     pub fn take_record_internal(&mut self) -> Option<Record<T>> {
+        self.status_hold &= !status::RECORD_READY;
         self.record.take()
     }
 
@@ -1031,6 +1038,21 @@ impl<T: SineTable> Controller<T> {
     pub fn block_due(&self) -> bool {
         let last = self.now.last;
         last > 0 && self.tick >= last
+    }
+
+    /// The sequencer's phase, and the status word's phase bits with it.
+    #[inline(always)]
+    fn set_phase(&mut self, p: Phase) {
+        self.phase = p;
+        self.status_hold = (self.status_hold & !(0xFF << status::PHASE_SHIFT))
+            | ((p as u32) << status::PHASE_SHIFT);
+    }
+
+    /// A finished tap or pixel to take, and `RECORD_READY` with it.
+    #[inline(always)]
+    fn set_record(&mut self, r: Record<T>) {
+        self.record = Some(r);
+        self.status_hold |= status::RECORD_READY;
     }
 
     /// The running mode, and its per-sample constants with it.
@@ -1211,12 +1233,10 @@ impl<T: SineTable> Controller<T> {
         if self.exc.sounding() {
             st |= status::EXCITING;
         }
-        if self.record.is_some() {
-            st |= status::RECORD_READY;
-        }
+        // The phase and RECORD_READY, kept as they change (`set_phase`, `set_record`).
+        st |= self.status_hold;
         st |= self.adopted;
         self.adopted = 0;
-        st |= (self.phase as u32) << status::PHASE_SHIFT;
         StepOut {
             u_m: u * self.p.to_m,
             u_code,
@@ -1384,7 +1404,7 @@ impl<T: SineTable> Controller<T> {
                     self.contact = ContactDetector::new(d);
                     self.dive.d_free = d;
                     self.dive.approach_from = u;
-                    self.phase = Phase::Approach;
+                    self.set_phase(Phase::Approach);
                 }
             }
             Phase::Approach => {
@@ -1394,7 +1414,7 @@ impl<T: SineTable> Controller<T> {
                         if let ContactState::Confirmed { h } = state {
                             self.dive.h = h;
                         }
-                        self.phase = Phase::Indent;
+                        self.set_phase(Phase::Indent);
                     }
                     Some(next) => u = next,
                     None => {
@@ -1474,7 +1494,7 @@ impl<T: SineTable> Controller<T> {
                 u += self.p.retract_step;
                 if u >= self.dive.u_safe {
                     u = self.dive.u_safe;
-                    self.phase = Phase::Wait;
+                    self.set_phase(Phase::Wait);
                 }
             }
             Phase::Wait if t >= self.p.dive.tap_samples => self.next_tap(),
@@ -1540,7 +1560,7 @@ impl<T: SineTable> Controller<T> {
         };
         self.restart_estimator(target, self.dive.theta_warm);
         self.exc.set_on(true);
-        self.phase = Phase::Dwell;
+        self.set_phase(Phase::Dwell);
     }
 
     fn finish_tap(&mut self, contact: bool) {
@@ -1577,9 +1597,9 @@ impl<T: SineTable> Controller<T> {
                 s.u_safe = up;
             }
         }
-        self.record = Some(Record::Tap(rec));
+        self.set_record(Record::Tap(rec));
         self.exc.set_on(false);
-        self.phase = Phase::Retract;
+        self.set_phase(Phase::Retract);
     }
 
     fn next_tap(&mut self) {
@@ -1590,7 +1610,7 @@ impl<T: SineTable> Controller<T> {
         s.flags = 0;
         s.acc.clear();
         if s.tap >= p.taps {
-            self.phase = Phase::Done;
+            self.set_phase(Phase::Done);
             self.set_mode(None);
             return;
         }
@@ -1600,7 +1620,7 @@ impl<T: SineTable> Controller<T> {
         s.y_from = self.y;
         s.x_to = p.x0 + p.dx * T::from_i32(ix as i32);
         s.y_to = p.y0 + p.dy * T::from_i32(iy as i32);
-        self.phase = Phase::Move;
+        self.set_phase(Phase::Move);
     }
 
     /// One SVE sample (inlined into `step_loop`, see `dive_step`).
@@ -1629,7 +1649,7 @@ impl<T: SineTable> Controller<T> {
                     self.contact = ContactDetector::new(d);
                     self.sve.d_free = d;
                     self.sve.approach_from = self.sve.u_cmd;
-                    self.phase = Phase::Approach;
+                    self.set_phase(Phase::Approach);
                 }
                 self.sve.u_cmd
             }
@@ -1650,13 +1670,13 @@ impl<T: SineTable> Controller<T> {
                     self.depth = DepthController::new(self.sve.u_cmd);
                     self.exc.set_on(true);
                     self.sve.t = 0;
-                    self.phase = Phase::Settle;
+                    self.set_phase(Phase::Settle);
                 } else {
                     match self.approach_u(self.sve.u_cmd, self.sve.approach_from) {
                         Some(u) => self.sve.u_cmd = u,
                         None => {
                             *st |= status::NO_CONTACT;
-                            self.phase = Phase::Retract;
+                            self.set_phase(Phase::Retract);
                         }
                     }
                 }
@@ -1746,7 +1766,7 @@ impl<T: SineTable> Controller<T> {
                 let u = self.sve.u_cmd + self.p.retract_step;
                 self.sve.u_cmd = u;
                 if u >= self.sve.z0 + self.p.clearance || u >= self.p.u_start {
-                    self.phase = Phase::Done;
+                    self.set_phase(Phase::Done);
                     self.set_mode(None);
                 }
                 // Let the excitation ramp out while retracting.
@@ -1787,7 +1807,7 @@ impl<T: SineTable> Controller<T> {
                 Some(u) => self.sve.u_cmd = u,
                 None => {
                     *st |= status::NO_CONTACT;
-                    self.phase = Phase::Retract;
+                    self.set_phase(Phase::Retract);
                     return self.sve.u_cmd;
                 }
             }
@@ -1835,9 +1855,9 @@ impl<T: SineTable> Controller<T> {
                             self.sve.t = 0;
                             if self.sve.line >= self.p.sve.lines {
                                 self.exc.set_on(false);
-                                self.phase = Phase::Retract;
+                                self.set_phase(Phase::Retract);
                             } else {
-                                self.phase = Phase::Turn;
+                                self.set_phase(Phase::Turn);
                             }
                         }
                     } else {
@@ -1875,11 +1895,11 @@ impl<T: SineTable> Controller<T> {
         } else {
             (p.x1, p.x0 - p.x1)
         };
-        self.phase = if forward {
+        self.set_phase(if forward {
             Phase::Forward
         } else {
             Phase::Backward
-        };
+        });
     }
 
     fn finish_pixel(&mut self, forward: bool) {
@@ -1907,9 +1927,9 @@ impl<T: SineTable> Controller<T> {
             flags: s.acc.flags,
             samples: s.acc.count(),
         };
-        self.record = Some(Record::Pixel(rec));
         s.acc.clear();
         s.x_acc = T::ZERO;
+        self.set_record(Record::Pixel(rec));
     }
 }
 
