@@ -441,6 +441,9 @@ impl<T: crate::Real> Accumulator<T> {
     /// One sample whose first `L` entries are θ̂ as it stands until the next [`Self::settle`]:
     /// only `v[L..]` is read (the θ̂ entries come with the settle).
     #[inline(always)]
+    // Index loops, not `copy_from_slice` or iterators: with those the M7 code of the whole
+    // step came out laid out differently (`cargo xtask bench`: SVE scan +5).
+    #[allow(clippy::manual_memcpy)]
     fn add_held<const L: usize>(&mut self, v: [T; 4], flags: u32) {
         if self.pending == 0 && self.n == 0 {
             for i in L.min(4)..4 {
@@ -463,6 +466,8 @@ impl<T: crate::Real> Accumulator<T> {
     /// The pending samples' θ̂ entries into the sums, `th` the θ̂ they saw (the first `L`
     /// entries used): before θ̂ changes. The first samples' θ̂ is the base, as in [`Self::add`].
     #[inline(always)]
+    // Index loops: see `add_held`.
+    #[allow(clippy::manual_memcpy)]
     fn settle<const L: usize>(&mut self, th: [T; 3]) {
         if self.pending > 0 {
             if self.n == 0 {
