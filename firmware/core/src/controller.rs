@@ -410,19 +410,18 @@ const BITS: FaultBits = FaultBits {
 /// With the block estimator θ̂ changes only when a block's result is adopted, so its entries
 /// (the first `L` of a sample, [`Self::add_held`]) need no per-sample sums: the loop counts
 /// the samples that saw the same θ̂ (`pending`) and [`Self::settle`] adds them as
-/// `count·(θ̂ − base)` once per block, before θ̂ changes. [`Self::add`] is the per-sample form,
-/// for the per-sample law (blocks of one), where θ̂ changes every sample.
+/// `count·(θ̂ − base)` once per block, before θ̂ changes, with θ̂ as it stood for them (the
+/// loop's own θ̂ then, so the loop neither selects nor stores θ̂ per sample). [`Self::add`] is
+/// the per-sample form, for the per-sample law (blocks of one), where θ̂ changes every sample.
 #[derive(Clone, Copy, Debug, Default)]
 struct Accumulator<T> {
     base: [T; 4],
     sum: [T; 4],
     /// Samples added, less the `pending` ones ([`Self::count`]).
     n: u32,
-    /// Samples since the θ̂ entries were last added to `sum`, all with the values `held`
-    /// (counted into `n` then: one counter per sample, not two).
+    /// Samples since the θ̂ entries were last added to `sum`, all with the θ̂ that
+    /// [`Self::settle`] is given (counted into `n` then: one counter per sample, not two).
     pending: u32,
-    /// The θ̂ entries of the pending samples (the others equal `base`, so they add 0).
-    held: [T; 3],
     flags: u32,
 }
 
@@ -439,16 +438,16 @@ impl<T: crate::Real> Accumulator<T> {
         self.flags |= flags;
     }
 
-    /// One sample whose first `L` entries are θ̂ as it stands until the next [`Self::settle`].
+    /// One sample whose first `L` entries are θ̂ as it stands until the next [`Self::settle`]:
+    /// only `v[L..]` is read (the θ̂ entries come with the settle).
     #[inline(always)]
+    // Index loops, not `copy_from_slice` or iterators: with those the M7 code of the whole
+    // step came out laid out differently (`cargo xtask bench`: SVE scan +5).
+    #[allow(clippy::manual_memcpy)]
     fn add_held<const L: usize>(&mut self, v: [T; 4], flags: u32) {
-        if self.pending == 0 {
-            if self.n == 0 {
-                self.base = v;
-                self.held = [v[0], v[1], v[2]];
-            }
-            for (h, x) in self.held.iter_mut().zip(v).take(L) {
-                *h = x;
+        if self.pending == 0 && self.n == 0 {
+            for i in L.min(4)..4 {
+                self.base[i] = v[i];
             }
         }
         for i in L.min(4)..4 {
@@ -464,22 +463,31 @@ impl<T: crate::Real> Accumulator<T> {
         self.n + self.pending
     }
 
-    /// The pending samples' θ̂ entries into the sums: before θ̂ changes.
+    /// The pending samples' θ̂ entries into the sums, `th` the θ̂ they saw (the first `L`
+    /// entries used): before θ̂ changes. The first samples' θ̂ is the base, as in [`Self::add`].
     #[inline(always)]
-    fn settle(&mut self) {
+    // Index loops: see `add_held`.
+    #[allow(clippy::manual_memcpy)]
+    fn settle<const L: usize>(&mut self, th: [T; 3]) {
         if self.pending > 0 {
+            if self.n == 0 {
+                for i in 0..L.min(3) {
+                    self.base[i] = th[i];
+                }
+            }
             let count = T::from_i32(self.pending as i32);
-            for i in 0..3 {
-                self.sum[i] += (self.held[i] - self.base[i]) * count;
+            for i in 0..L.min(3) {
+                self.sum[i] += (th[i] - self.base[i]) * count;
             }
             self.n += self.pending;
             self.pending = 0;
         }
     }
 
-    fn mean(&self) -> [T; 4] {
+    /// The means, `th` the θ̂ of the samples not settled yet ([`Self::settle`]).
+    fn mean<const L: usize>(&self, th: [T; 3]) -> [T; 4] {
         let mut acc = *self;
-        acc.settle();
+        acc.settle::<L>(th);
         let mut m = acc.base;
         if acc.n > 0 {
             let inv = T::ONE / T::from_i32(acc.n as i32);
@@ -514,6 +522,9 @@ struct DiveState<T> {
     y_to: T,
     h: T,
     z0: T,
+    /// The regressor's reference for the tap, set with the dwell: h (the paper's φ), or the
+    /// target tip position z₀ = h − indent (the offset regressor).
+    r: T,
     d_free: T,
     theta_warm: [T; 3],
     acc: Accumulator<T>,
@@ -575,6 +586,10 @@ pub struct Controller<T> {
     now: ModeNow<T>,
     /// Status bits of the result adopted this sample.
     adopted: u32,
+    /// The status word's phase bits and `RECORD_READY`, set where the phase or the record
+    /// changes ([`Self::set_phase`], [`Self::set_record`]): one load per sample instead of
+    /// testing the record and shifting the phase.
+    status_hold: u32,
     guard: Guard<T>,
     /// Z = U − D of the last sample (the tip position, not prefiltered: the prefilters run in
     /// the estimator task).
@@ -791,6 +806,7 @@ impl<T: SineTable> Controller<T> {
             y_to: y,
             h: T::ZERO,
             z0: T::ZERO,
+            r: T::ZERO,
             d_free: T::ZERO,
             theta_warm: p.dive.theta0,
             acc: Accumulator::default(),
@@ -857,6 +873,7 @@ impl<T: SineTable> Controller<T> {
             mode: None,
             now,
             phase: Phase::Idle,
+            status_hold: (Phase::Idle as u32) << status::PHASE_SHIFT,
             y_settled: false,
             u,
             u_code,
@@ -913,7 +930,7 @@ impl<T: SineTable> Controller<T> {
         match cmd {
             Command::Stop => {
                 self.set_mode(None);
-                self.phase = Phase::Idle;
+                self.set_phase(Phase::Idle);
                 self.exc.silence();
             }
             Command::Start(Mode::Dive) => {
@@ -930,7 +947,7 @@ impl<T: SineTable> Controller<T> {
                 self.dive.theta_warm = p.theta0;
                 self.dive.flags = 0;
                 self.exc.silence();
-                self.phase = Phase::Move;
+                self.set_phase(Phase::Move);
             }
             Command::Start(Mode::Sve) => {
                 self.set_mode(Some(Mode::Sve));
@@ -940,7 +957,7 @@ impl<T: SineTable> Controller<T> {
                 self.dive.x_from = self.x;
                 self.dive.y_from = self.y;
                 self.exc.silence();
-                self.phase = Phase::Move;
+                self.set_phase(Phase::Move);
             }
         }
     }
@@ -959,6 +976,7 @@ impl<T: SineTable> Controller<T> {
     #[inline]
     pub fn take_record(&mut self) -> Option<Record<T>> {
         let (to_m, to_si) = (self.p.to_m, self.p.damping_to_si);
+        self.status_hold &= !status::RECORD_READY;
         self.record.take().map(|r| r.scaled(to_m, to_si))
     }
 
@@ -966,6 +984,7 @@ impl<T: SineTable> Controller<T> {
     /// named `_m` hold nm, `offset_n` nN, `c_ns_per_m` nN·µs/nm): what a fixed-point caller
     /// reads, as no Q format holds the SI factors (see [`crate::fixed`]).
     pub fn take_record_internal(&mut self) -> Option<Record<T>> {
+        self.status_hold &= !status::RECORD_READY;
         self.record.take()
     }
 
@@ -1026,6 +1045,21 @@ impl<T: SineTable> Controller<T> {
         last > 0 && self.tick >= last
     }
 
+    /// The sequencer's phase, and the status word's phase bits with it.
+    #[inline(always)]
+    fn set_phase(&mut self, p: Phase) {
+        self.phase = p;
+        self.status_hold = (self.status_hold & !(0xFF << status::PHASE_SHIFT))
+            | ((p as u32) << status::PHASE_SHIFT);
+    }
+
+    /// A finished tap or pixel to take, and `RECORD_READY` with it.
+    #[inline(always)]
+    fn set_record(&mut self, r: Record<T>) {
+        self.record = Some(r);
+        self.status_hold |= status::RECORD_READY;
+    }
+
     /// The running mode, and its per-sample constants with it.
     fn set_mode(&mut self, mode: Option<Mode>) {
         self.mode = mode;
@@ -1058,8 +1092,7 @@ impl<T: SineTable> Controller<T> {
             return;
         }
         // The read-out sums take the samples of the θ̂ about to be replaced.
-        self.dive.acc.settle();
-        self.sve.acc.settle();
+        self.settle_readouts();
         if r.target.two() {
             self.theta2 = [r.theta[0], r.theta[1]];
         } else {
@@ -1069,6 +1102,32 @@ impl<T: SineTable> Controller<T> {
         if r.flags & status::EST_DIVERGED != 0 && self.mode == Some(Mode::Dive) {
             self.dive.flags |= status::EST_DIVERGED;
         }
+    }
+
+    /// θ̂ as the DIVE read-out averages it: [c, k, 0] (the paper's regressor) or [c, k, k·(h − z₀)].
+    #[inline(always)]
+    fn dive_theta(&self) -> [T; 3] {
+        match self.p.dive.regressor {
+            DiveRegressor::Paper => [self.theta2[0], self.theta2[1], T::ZERO],
+            DiveRegressor::Offset => self.theta3,
+        }
+    }
+
+    /// θ̂ as the SVE pixels average it (c and k: the first two entries).
+    #[inline(always)]
+    fn sve_theta(&self) -> [T; 3] {
+        match self.p.sve.regressor {
+            SveRegressor::Decoupled => [self.theta2[0], self.theta2[1], T::ZERO],
+            SveRegressor::Paper => self.theta3,
+        }
+    }
+
+    /// The read-out sums take their pending samples' θ̂ (before θ̂ changes).
+    #[inline(always)]
+    fn settle_readouts(&mut self) {
+        let (d, v) = (self.dive_theta(), self.sve_theta());
+        self.dive.acc.settle::<3>(d);
+        self.sve.acc.settle::<2>(v);
     }
 
     /// SVE: the static tip force low-passed below the tones, as the surface check sees it (N).
@@ -1179,12 +1238,10 @@ impl<T: SineTable> Controller<T> {
         if self.exc.sounding() {
             st |= status::EXCITING;
         }
-        if self.record.is_some() {
-            st |= status::RECORD_READY;
-        }
+        // The phase and RECORD_READY, kept as they change (`set_phase`, `set_record`).
+        st |= self.status_hold;
         st |= self.adopted;
         self.adopted = 0;
-        st |= (self.phase as u32) << status::PHASE_SHIFT;
         StepOut {
             u_m: u * self.p.to_m,
             u_code,
@@ -1256,8 +1313,7 @@ impl<T: SineTable> Controller<T> {
 
     /// A new tap or scan: the estimator at θ̂₀ with P₀, the divergence watch restarted.
     fn restart_estimator(&mut self, target: Target, theta0: [T; 3]) {
-        self.dive.acc.settle();
-        self.sve.acc.settle();
+        self.settle_readouts();
         self.task.restart(target, theta0);
         self.task.restart_watch();
         self.theta2 = self.task.estimator2().theta();
@@ -1353,7 +1409,7 @@ impl<T: SineTable> Controller<T> {
                     self.contact = ContactDetector::new(d);
                     self.dive.d_free = d;
                     self.dive.approach_from = u;
-                    self.phase = Phase::Approach;
+                    self.set_phase(Phase::Approach);
                 }
             }
             Phase::Approach => {
@@ -1363,7 +1419,7 @@ impl<T: SineTable> Controller<T> {
                         if let ContactState::Confirmed { h } = state {
                             self.dive.h = h;
                         }
-                        self.phase = Phase::Indent;
+                        self.set_phase(Phase::Indent);
                     }
                     Some(next) => u = next,
                     None => {
@@ -1398,38 +1454,37 @@ impl<T: SineTable> Controller<T> {
                 }
                 let estimating = input_ok && t >= self.dive.estimate_from;
                 let h = self.dive.h;
-                // The regressor's reference: h (the paper's φ), or the target tip position
-                // z₀ = h − indent (the offset regressor), fixed for the tap.
-                let r = match self.p.dive.regressor {
-                    DiveRegressor::Paper => h,
-                    DiveRegressor::Offset => self.dive.z0,
-                };
-                let f = self.feed(sink, z, r, if estimating { SAMPLE_EST } else { 0 });
+                // The regressor's reference (`DiveState::r`, fixed for the tap).
+                let f = self.feed(
+                    sink,
+                    z,
+                    self.dive.r,
+                    if estimating { SAMPLE_EST } else { 0 },
+                );
                 *fed = true;
                 if estimating {
-                    let block = self.now.last > 0;
-                    let th = match self.p.dive.regressor {
-                        DiveRegressor::Paper => {
-                            let th = self.theta2;
-                            [th[0], th[1], T::ZERO]
-                        }
-                        DiveRegressor::Offset => self.theta3,
-                    };
-                    if f & status::EST_DIVERGED != 0 {
-                        self.dive.flags |= status::EST_DIVERGED;
-                    }
                     *st |= f;
-                    if t >= self.dive.readout_from {
-                        // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
-                        // The depth from Z itself: its mean over the read-out is that of Z/Λ
-                        // (unit DC gain) but for the filter's edges and the tones' residue.
-                        let v = [th[0], th[1], th[2], h - z];
-                        if block {
+                    // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
+                    // The depth from Z itself: its mean over the read-out is that of Z/Λ
+                    // (unit DC gain) but for the filter's edges and the tones' residue.
+                    if self.now.last > 0 {
+                        // Blocks: f is ESTIMATING and the flags of a result adopted at this
+                        // sample, whose divergence `deliver` put into the tap's flags
+                        // already; the read-out's θ̂ entries come with `settle` per block.
+                        if t >= self.dive.readout_from {
+                            let v = [T::ZERO, T::ZERO, T::ZERO, h - z];
                             self.dive.acc.add_held::<3>(v, f);
-                        } else {
-                            self.dive.acc.add(v, f);
+                            *st |= status::READOUT;
                         }
-                        *st |= status::READOUT;
+                    } else {
+                        if f & status::EST_DIVERGED != 0 {
+                            self.dive.flags |= status::EST_DIVERGED;
+                        }
+                        if t >= self.dive.readout_from {
+                            let v = self.dive_theta();
+                            self.dive.acc.add([v[0], v[1], v[2], h - z], f);
+                            *st |= status::READOUT;
+                        }
                     }
                 }
                 // t + ramp ≥ dwell_end; dwell_end ≥ ramp_from, so the end is inside.
@@ -1444,7 +1499,7 @@ impl<T: SineTable> Controller<T> {
                 u += self.p.retract_step;
                 if u >= self.dive.u_safe {
                     u = self.dive.u_safe;
-                    self.phase = Phase::Wait;
+                    self.set_phase(Phase::Wait);
                 }
             }
             Phase::Wait if t >= self.p.dive.tap_samples => self.next_tap(),
@@ -1500,19 +1555,24 @@ impl<T: SineTable> Controller<T> {
         self.dive.readout_from = readout_from.max(estimate_from);
         self.dive.acc.clear();
         self.dive.z0 = self.dive.h - p.indent;
+        self.dive.r = match p.regressor {
+            DiveRegressor::Paper => self.dive.h,
+            DiveRegressor::Offset => self.dive.z0,
+        };
         let target = match p.regressor {
             DiveRegressor::Paper => Target::Dive2,
             DiveRegressor::Offset => Target::Dive3,
         };
         self.restart_estimator(target, self.dive.theta_warm);
         self.exc.set_on(true);
-        self.phase = Phase::Dwell;
+        self.set_phase(Phase::Dwell);
     }
 
     fn finish_tap(&mut self, contact: bool) {
         let p = self.p.dive;
+        let th = self.dive_theta();
         let s = &mut self.dive;
-        let m = s.acc.mean();
+        let m = s.acc.mean::<3>(th);
         let tap = s.tap;
         // In internal units: `take_record` converts to SI.
         let rec = TapRecord {
@@ -1542,9 +1602,9 @@ impl<T: SineTable> Controller<T> {
                 s.u_safe = up;
             }
         }
-        self.record = Some(Record::Tap(rec));
+        self.set_record(Record::Tap(rec));
         self.exc.set_on(false);
-        self.phase = Phase::Retract;
+        self.set_phase(Phase::Retract);
     }
 
     fn next_tap(&mut self) {
@@ -1555,7 +1615,7 @@ impl<T: SineTable> Controller<T> {
         s.flags = 0;
         s.acc.clear();
         if s.tap >= p.taps {
-            self.phase = Phase::Done;
+            self.set_phase(Phase::Done);
             self.set_mode(None);
             return;
         }
@@ -1565,7 +1625,7 @@ impl<T: SineTable> Controller<T> {
         s.y_from = self.y;
         s.x_to = p.x0 + p.dx * T::from_i32(ix as i32);
         s.y_to = p.y0 + p.dy * T::from_i32(iy as i32);
-        self.phase = Phase::Move;
+        self.set_phase(Phase::Move);
     }
 
     /// One SVE sample (inlined into `step_loop`, see `dive_step`).
@@ -1594,7 +1654,7 @@ impl<T: SineTable> Controller<T> {
                     self.contact = ContactDetector::new(d);
                     self.sve.d_free = d;
                     self.sve.approach_from = self.sve.u_cmd;
-                    self.phase = Phase::Approach;
+                    self.set_phase(Phase::Approach);
                 }
                 self.sve.u_cmd
             }
@@ -1615,13 +1675,13 @@ impl<T: SineTable> Controller<T> {
                     self.depth = DepthController::new(self.sve.u_cmd);
                     self.exc.set_on(true);
                     self.sve.t = 0;
-                    self.phase = Phase::Settle;
+                    self.set_phase(Phase::Settle);
                 } else {
                     match self.approach_u(self.sve.u_cmd, self.sve.approach_from) {
                         Some(u) => self.sve.u_cmd = u,
                         None => {
                             *st |= status::NO_CONTACT;
-                            self.phase = Phase::Retract;
+                            self.set_phase(Phase::Retract);
                         }
                     }
                 }
@@ -1711,7 +1771,7 @@ impl<T: SineTable> Controller<T> {
                 let u = self.sve.u_cmd + self.p.retract_step;
                 self.sve.u_cmd = u;
                 if u >= self.sve.z0 + self.p.clearance || u >= self.p.u_start {
-                    self.phase = Phase::Done;
+                    self.set_phase(Phase::Done);
                     self.set_mode(None);
                 }
                 // Let the excitation ramp out while retracting.
@@ -1752,7 +1812,7 @@ impl<T: SineTable> Controller<T> {
                 Some(u) => self.sve.u_cmd = u,
                 None => {
                     *st |= status::NO_CONTACT;
-                    self.phase = Phase::Retract;
+                    self.set_phase(Phase::Retract);
                     return self.sve.u_cmd;
                 }
             }
@@ -1800,9 +1860,9 @@ impl<T: SineTable> Controller<T> {
                             self.sve.t = 0;
                             if self.sve.line >= self.p.sve.lines {
                                 self.exc.set_on(false);
-                                self.phase = Phase::Retract;
+                                self.set_phase(Phase::Retract);
                             } else {
-                                self.phase = Phase::Turn;
+                                self.set_phase(Phase::Turn);
                             }
                         }
                     } else {
@@ -1840,17 +1900,18 @@ impl<T: SineTable> Controller<T> {
         } else {
             (p.x1, p.x0 - p.x1)
         };
-        self.phase = if forward {
+        self.set_phase(if forward {
             Phase::Forward
         } else {
             Phase::Backward
-        };
+        });
     }
 
     fn finish_pixel(&mut self, forward: bool) {
         let p = self.p.sve;
+        let th = self.sve_theta();
         let s = &mut self.sve;
-        let m = s.acc.mean();
+        let m = s.acc.mean::<2>(th);
         let n = s.acc.count().max(1);
         let pixel = if forward {
             s.pixel
@@ -1871,9 +1932,9 @@ impl<T: SineTable> Controller<T> {
             flags: s.acc.flags,
             samples: s.acc.count(),
         };
-        self.record = Some(Record::Pixel(rec));
         s.acc.clear();
         s.x_acc = T::ZERO;
+        self.set_record(Record::Pixel(rec));
     }
 }
 
@@ -1881,9 +1942,14 @@ impl<T: SineTable> Controller<T> {
 mod accumulator_tests {
     use super::Accumulator;
 
-    /// Means equal to rounding (1e-12 relative), entry by entry.
-    fn assert_means_equal(a: &Accumulator<f64>, b: &Accumulator<f64>) {
-        let (a, b) = (a.mean(), b.mean());
+    /// Means equal to rounding (1e-12 relative), entry by entry: `a` per sample, `b` held
+    /// with θ̂ `th` since its last settle.
+    fn assert_means_equal<const L: usize>(
+        a: &Accumulator<f64>,
+        b: &Accumulator<f64>,
+        th: [f64; 3],
+    ) {
+        let (a, b) = (a.mean::<L>([f64::NAN; 3]), b.mean::<L>(th));
         for i in 0..4 {
             assert!(
                 (a[i] - b[i]).abs() <= 1e-12 * a[i].abs().max(1.0),
@@ -1908,11 +1974,12 @@ mod accumulator_tests {
                 let x = 0.37 * f64::from(k) - 1e-3 * f64::from(k * k % 97);
                 let v = [theta[0], theta[1], theta[2], x];
                 per_sample.add(v, k & 3);
-                held.add_held::<3>(v, k & 3);
+                // The held entries are not read (NaN would show): they come with `settle`.
+                held.add_held::<3>([f64::NAN, f64::NAN, f64::NAN, x], k & 3);
                 k += 1;
             }
             // A block's result adopted: θ̂ moves; the held sums take their samples first.
-            held.settle();
+            held.settle::<3>(theta);
             theta = [
                 theta[0] * 1.01 + 0.2,
                 theta[1] - 0.7,
@@ -1923,24 +1990,28 @@ mod accumulator_tests {
         for _ in 0..13 {
             let v = [theta[0], theta[1], theta[2], 2.5];
             per_sample.add(v, 0);
-            held.add_held::<3>(v, 0);
+            held.add_held::<3>([f64::NAN, f64::NAN, f64::NAN, 2.5], 0);
         }
         assert_eq!(
             (per_sample.count(), per_sample.flags),
             (held.count(), held.flags)
         );
-        assert_means_equal(&per_sample, &held);
+        assert_means_equal::<3>(&per_sample, &held, theta);
         // An SVE-style accumulator (two held entries): the third and fourth per sample.
         let (mut p2, mut h2) = (Accumulator::<f64>::default(), Accumulator::<f64>::default());
-        for k in 0..100u32 {
-            if k % 32 == 0 {
-                h2.settle();
-            }
+        let theta2 = |k: u32| {
             let c = 1.0 + f64::from(k / 32);
-            let v = [c, 2.0 * c, f64::from(k) * 0.1, -f64::from(k)];
-            p2.add(v, 0);
-            h2.add_held::<2>(v, 0);
+            [c, 2.0 * c, f64::NAN]
+        };
+        for k in 0..100u32 {
+            if k % 32 == 0 && k > 0 {
+                h2.settle::<2>(theta2(k - 1));
+            }
+            let th = theta2(k);
+            let (h, d) = (f64::from(k) * 0.1, -f64::from(k));
+            p2.add([th[0], th[1], h, d], 0);
+            h2.add_held::<2>([f64::NAN, f64::NAN, h, d], 0);
         }
-        assert_means_equal(&p2, &h2);
+        assert_means_equal::<2>(&p2, &h2, theta2(99));
     }
 }

@@ -1,29 +1,37 @@
 //! The two-tone excitation (29): `U_exc = a₁·sin(2πf₁t) + a₂·sin(2πf₂t)`, without calling a sine.
 //!
-//! Each tone is a unit phasor `(cos θ, sin θ)` rotated by a complex multiplication per sample
-//! (four products and two sums, against ~17 operations and two table loads for a corrected
-//! table read), and set again from an exact integer phase every [`RESYNC`] samples. (In
-//! floating point; the fixed-point type reads the table at every sample, see
-//! [`SineTable::PHASOR`].)
+//! Each tone is a second-order recursive oscillator, `y ← 2cos Δ·y − y₋₁` (the Chebyshev
+//! recursion of sin: one product and one difference per sample, against four products and
+//! two sums for a rotating phasor and ~17 operations and two table loads for a corrected
+//! table read), on the amplitude-scaled tone itself, and set again from an exact integer
+//! phase every [`RESYNC`] samples. (In floating point; the fixed-point type reads the table at
+//! every sample, see [`SineTable::RECURSIVE`].)
 //!
-//! **The phase is exact, and the phasor never strays far from it.** A 32-bit phase accumulator
-//! advanced by an integer increment per sample is what defines the tone: after 10⁸ or 10¹²
-//! samples it is exactly `n·Δ mod 2³²`. The accumulator is advanced once per chunk of
-//! [`RESYNC`] samples (by `RESYNC·Δ`, exact in integers), and at each chunk's first sample
-//! the phasor is set from it by the sine table below (a 256-entry table with a second-order
-//! correction: `sin(a + b) = sin a·cos b + cos a·sin b` with `cos b ≈ 1 − b²/2`,
-//! `sin b ≈ b(1 − b²/6)`, truncation `b⁴/24 < 1.5·10⁻⁸`, below f32 rounding). In between, the
-//! phasor is rotated by the rounded `(cos Δ, sin Δ)`: each rotation adds at most the rounding
-//! of that constant (≤ 2⁻²⁴·√2 in angle and in modulus) and of its own products and sums
-//! (≤ 2·2⁻²⁴ per component), so after the [`RESYNC`]` − 1` rotations of a chunk the phasor is
-//! off by at most `31·(√2 + 2√2)·2⁻²⁴ + 3·2⁻²⁴ ≈ 8·10⁻⁶` of its unit length, in phase (rad)
-//! and in amplitude alike, and the next chunk starts exact again: the error is bounded
-//! for ever, however long the excitation runs, where a free-running oscillator would drift
-//! (≈ 0.75 rad after 10⁸ samples at 20 kHz in f32) and need its amplitude renormalised.
-//! In Q31.32 the same bound is ~10⁻⁸ (its rounding is 2⁻³³). Why that is enough: the
-//! identification uses U as applied (the DAC's value, whatever the tones were), so the tones
-//! only have to be persistently exciting and at their frequencies; and 8·10⁻⁶ of the paper's
-//! 1 µm DIVE tone is 8 pm, a tenth of the U DAC's step (6 µm/2¹⁶ = 92 pm), which rounds it.
+//! **The phase is exact, and the oscillator never strays far from it.** A 32-bit phase
+//! accumulator advanced by an integer increment per sample is what defines the tone: after
+//! 10⁸ or 10¹² samples it is exactly `n·Δ mod 2³²`. The accumulator is advanced once per chunk
+//! of [`RESYNC`] samples (by `RESYNC·Δ`, exact in integers), and at each chunk's first sample
+//! the oscillator is set from it — `a·sin θ` of that sample and of the one before — by the
+//! sine table below (a 256-entry table with a second-order correction: `sin(a + b) = sin a·cos
+//! b + cos a·sin b` with `cos b ≈ 1 − b²/2`, `sin b ≈ b(1 − b²/6)`, truncation
+//! `b⁴/24 < 1.5·10⁻⁸`, below f32 rounding). In between, the recursion runs on the rounded
+//! `2cos Δ`. Its errors are not damped: an error `e` made at one sample reappears
+//! `n` samples later as `e·sin((n+1)Δ)/sin Δ`, so each is amplified by up to `1/sin Δ` (the
+//! price of the one product: the recursion is ill-conditioned at low frequency). Per
+//! sample the product and the difference round (≤ 3u·a with u = 2⁻²⁴: |2cos Δ·y| ≤ 2a) and the
+//! rounded constant is off by ≤ u (≤ u·a on the product); the two starting values by ≤ 6u·a
+//! each (the table read's four roundings, its truncation, the amplitude's product). So
+//! after `j` recursions the tone is off by at most `(12 + 4j)·u·a / sin Δ`, for the chunk's
+//! last `j = RESYNC − 1 = 31`: `136·u·a / sin Δ`; the next chunk starts exact again, so the
+//! error is bounded for ever, however long the excitation runs (a free-running recursion
+//! would drift and need its amplitude renormalised). For the paper's DIVE tones at 1 MHz
+//! (1 µm at f₀ ≈ 19.7 kHz, sin Δ = 0.12; 70 nm at f₀/4, sin Δ = 0.031) that is 66 pm and
+//! 18 pm, below the U DAC's step (6 µm/2¹⁶ = 92 pm); at the demo's 500 kHz half that.
+//! Why that is enough: the identification uses U as applied (the DAC's value, whatever the
+//! tones were), so the tones only have to be persistently exciting and at their frequencies.
+//! (The rotating phasor it replaced was off by ≤ 8·10⁻⁶ of the amplitude, 8 pm on the 1 µm
+//! tone, for ~18 instructions more per loop interrupt: `cargo xtask bench`.)
+//! `excitation_long_run` checks the bound sample by sample over 10⁸ samples.
 //!
 //! The price of the integer phase is that a frequency is a multiple of `f_s/2³²` (0.23 mHz at
 //! 1 MHz): the synthesised frequency is reported by [`Tone::frequency`], and it is the one the
@@ -90,14 +98,15 @@ pub static SIN_TABLE_F32: [f32; TABLE_SIZE] = table_f32();
 
 /// A number type with a sine table.
 pub trait SineTable: Real + 'static {
-    /// Tones from rotating phasors (true), or from the table at every sample (false).
-    /// Floating point: the rotation's four products are cheaper than a corrected table read.
+    /// Tones from the recursive oscillator (true), or from the table at every sample (false).
+    /// Floating point: the recursion's product is cheaper than a corrected table read.
     /// Fixed point (Q31.32) keeps the table: there the table read's products are by
     /// constants or by operands the compiler knows to be small (their partial products fold
-    /// away), while the rotation's are general 64 × 64-bit products; measured on the
-    /// Cortex-M3 (`cargo xtask bench --m3 --fixed`), the phasors cost ~190 instructions more
-    /// per sample.
-    const PHASOR: bool = true;
+    /// away), while the recursion's are general 64 × 64-bit products (and its error grows
+    /// like 1/sin Δ, where Q31.32's table read is within 2⁻³³); measured on the Cortex-M3
+    /// (`cargo xtask bench --m3 --fixed`) with the rotating phasors before it, those cost
+    /// ~190 instructions more per sample.
+    const RECURSIVE: bool = true;
     /// sin(2π·i/TABLE_LEN) for i in 0..TABLE_SIZE.
     fn sine_table() -> &'static [Self; TABLE_SIZE];
 }
@@ -134,10 +143,11 @@ pub fn sine<T: SineTable>(phase: u32) -> T {
     s * cos_b + c * sin_b
 }
 
-/// Samples per chunk: the phasors are set from the integer phases at every chunk's first
-/// sample and rotated for the other `RESYNC − 1`. 32: the setting (four table reads, ~100
-/// instructions) costs ~3 per sample, and the rotation error stays at ~8·10⁻⁶ (module docs);
-/// the error grows linearly with the chunk, the setting's share falls as its inverse.
+/// Samples per chunk: the oscillators are set from the integer phases at every chunk's first
+/// sample and run by the recursion for the other `RESYNC − 1`. 32: the setting (four table
+/// reads, ~100 instructions) costs ~3 per sample, and the recursion's error stays below
+/// `136·u·a/sin Δ` (module docs); the error grows linearly with the chunk, the setting's
+/// share falls as its inverse.
 pub const RESYNC: u32 = 32;
 
 /// One tone of the synthesiser.
@@ -147,9 +157,9 @@ pub struct Tone<T> {
     pub increment: u32,
     /// Amplitude (internal length unit).
     pub amplitude: T,
-    /// `(cos Δ, sin Δ)` of the increment's angle `Δ = 2π·increment/2³²` (computed in f64,
-    /// rounded once): the phasor's rotation per sample.
-    pub rotation: [T; 2],
+    /// `2cos Δ` of the increment's angle `Δ = 2π·increment/2³²` (computed in f64, rounded
+    /// once): the recursion's constant.
+    pub twice_cos: T,
 }
 
 impl<T: Real> Tone<T> {
@@ -158,13 +168,13 @@ impl<T: Real> Tone<T> {
         let inc = frequency_hz / sample_rate_hz * 4_294_967_296.0;
         let inc = inc.clamp(0.0, 4_294_967_295.0);
         let increment = (inc + 0.5) as u32;
-        // The angle of the integer increment, not of the request: the rotation then follows
+        // The angle of the integer increment, not of the request: the recursion then follows
         // the exact phase the chunks are set from.
         let delta = 2.0 * core::f64::consts::PI * increment as f64 / 4_294_967_296.0;
         Self {
             increment,
             amplitude,
-            rotation: [T::from_f64(libm::cos(delta)), T::from_f64(libm::sin(delta))],
+            twice_cos: T::from_f64(2.0 * libm::cos(delta)),
         }
     }
 
@@ -185,24 +195,25 @@ pub struct ExcitationParams<T> {
     pub ramp_step: T,
 }
 
-/// `(c, s)·(rc, rs)`: the unit phasor turned by the rotation.
+/// One step of the recursion: `[y, y₋₁]` → `[2cos Δ·y − y₋₁, y]`.
 #[inline(always)]
-fn rotate<T: Real>(v: [T; 2], r: [T; 2]) -> [T; 2] {
-    [v[0] * r[0] - v[1] * r[1], v[1] * r[0] + v[0] * r[1]]
+fn recur<T: Real>(y: [T; 2], twice_cos: T) -> [T; 2] {
+    [twice_cos * y[0] - y[1], y[0]]
 }
 
-/// `(cos, sin)` of the integer phase `phase` (2³² = one turn), from the table.
+/// `[a·sin θ, a·sin(θ − Δ)]` of the integer phase `phase` and increment `inc` (2³² = one
+/// turn), from the table: a tone's oscillator at that sample.
 #[inline(always)]
-fn phasor<T: SineTable>(phase: u32) -> [T; 2] {
-    [sine::<T>(phase.wrapping_add(1 << 30)), sine::<T>(phase)]
+fn oscillator<T: SineTable>(phase: u32, inc: u32, a: T) -> [T; 2] {
+    [a * sine::<T>(phase), a * sine::<T>(phase.wrapping_sub(inc))]
 }
 
 /// State of the two-tone excitation.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Excitation<T> {
-    /// Unit phasors `(cos, sin)` of the two tones at the latest sample.
-    ph1: [T; 2],
-    ph2: [T; 2],
+    /// The two tones' oscillators, `[a·sin θ, a·sin(θ − Δ)]` at the latest sample.
+    osc1: [T; 2],
+    osc2: [T; 2],
     /// Integer phases of the current chunk's last sample (of the latest sample when `left` is 0).
     phase1: u32,
     phase2: u32,
@@ -259,22 +270,22 @@ impl<T: SineTable> Excitation<T> {
         )
     }
 
-    /// Unit phasors `(cos, sin)` of the two tones at the latest sample (for tests; zero for
-    /// a type that reads the table at every sample, `SineTable::PHASOR` false).
-    pub fn phasors(&self) -> ([T; 2], [T; 2]) {
-        (self.ph1, self.ph2)
+    /// The two tones `a·sin θ` at the latest sample, before the envelope (for tests; zero for
+    /// a type that reads the table at every sample, `SineTable::RECURSIVE` false).
+    pub fn tone_values(&self) -> (T, T) {
+        (self.osc1[0], self.osc2[0])
     }
 
-    /// A chunk's first sample: both phasors set from the exact integer phases. Out of line:
-    /// once per [`RESYNC`] samples, and its table reads would crowd the per-sample path.
+    /// A chunk's first sample: both oscillators set from the exact integer phases. Out of
+    /// line: once per [`RESYNC`] samples, and its table reads would crowd the per-sample path.
     #[inline(never)]
     fn start_chunk(&mut self, p: &ExcitationParams<T>) {
         // The phases of this sample; then those of the chunk's last, RESYNC − 1 samples on.
         let (i1, i2) = (p.tone1.increment, p.tone2.increment);
         let first1 = self.phase1.wrapping_add(i1);
         let first2 = self.phase2.wrapping_add(i2);
-        self.ph1 = phasor(first1);
-        self.ph2 = phasor(first2);
+        self.osc1 = oscillator(first1, i1, p.tone1.amplitude);
+        self.osc2 = oscillator(first2, i2, p.tone2.amplitude);
         self.phase1 = first1.wrapping_add((RESYNC - 1).wrapping_mul(i1));
         self.phase2 = first2.wrapping_add((RESYNC - 1).wrapping_mul(i2));
         self.left = RESYNC - 1;
@@ -283,7 +294,7 @@ impl<T: SineTable> Excitation<T> {
     /// Both tones advanced one sample: `a₁·sin θ₁ + a₂·sin θ₂`.
     #[inline(always)]
     fn tones(&mut self, p: &ExcitationParams<T>) -> T {
-        if !T::PHASOR {
+        if !T::RECURSIVE {
             // The table at every sample (`left` stays 0: the phases are the latest sample's).
             self.phase1 = self.phase1.wrapping_add(p.tone1.increment);
             self.phase2 = self.phase2.wrapping_add(p.tone2.increment);
@@ -294,10 +305,10 @@ impl<T: SineTable> Excitation<T> {
             self.start_chunk(p);
         } else {
             self.left -= 1;
-            self.ph1 = rotate(self.ph1, p.tone1.rotation);
-            self.ph2 = rotate(self.ph2, p.tone2.rotation);
+            self.osc1 = recur(self.osc1, p.tone1.twice_cos);
+            self.osc2 = recur(self.osc2, p.tone2.twice_cos);
         }
-        p.tone1.amplitude * self.ph1[1] + p.tone2.amplitude * self.ph2[1]
+        self.osc1[0] + self.osc2[0]
     }
 
     /// The next excitation sample, and advance.

@@ -352,8 +352,8 @@ macro_rules! fixed {
         };
 
         impl SineTable for $name {
-            // The table at every sample: see `SineTable::PHASOR`.
-            const PHASOR: bool = false;
+            // The table at every sample: see `SineTable::RECURSIVE`.
+            const RECURSIVE: bool = false;
             #[inline(always)]
             fn sine_table() -> &'static [Self; TABLE_SIZE] {
                 &$table

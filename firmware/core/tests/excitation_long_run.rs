@@ -7,8 +7,8 @@
 //! |Δf| ≤ f_s/2³³, and by nothing else. Checked (a) sample by sample against the f64 tones
 //! at the nearest representable frequency, to the f32 resolution of the output; (b) by
 //! lock-in on the requested frequencies at the start and after 10⁸ samples: amplitude
-//! unchanged, phase moved by 2π·Δf·Δt and no more; (c) the rotating phasors themselves,
-//! sample by sample: angle and modulus within the chunk bound of `visco_core::excitation`.
+//! unchanged, phase moved by 2π·Δf·Δt and no more; (c) each tone's recursive oscillator,
+//! sample by sample, within the chunk bound of `visco_core::excitation`.
 
 use visco_core::excitation::{Excitation, ExcitationParams, Tone, RESYNC};
 
@@ -40,26 +40,30 @@ fn excitation_follows_the_requested_tones_over_1e8_samples() {
     assert!(df1.abs() <= QUANTUM / 2.0 && df2.abs() <= QUANTUM / 2.0);
     let two_pi = 2.0 * std::f64::consts::PI;
     let (aa1, aa2) = (f64::from(a1), f64::from(a2));
-    // The phasor's bound (see `visco_core::excitation`), in units of the f32 rounding
-    // u = 2⁻²⁴: set at a chunk's first sample from the table (sin and cos each within four
-    // roundings: the entry, the two corrected products, their sum: 4√2·u as a vector), then
-    // RESYNC − 1 rotations, each off by the rounding of the rotation constant (u) and of its
-    // two products and sum per component (2u each, 2√2·u as a vector, since
-    // |c·rc| + |s·rs| ≤ 1 for unit vectors). The table's truncation (1.5·10⁻⁸) and the f64
-    // reference's phase (10⁻⁹ rad) are below it.
+    // The recursion's bound (see `visco_core::excitation`), in units of the f32 rounding
+    // u = 2⁻²⁴, for a tone of amplitude a and increment angle Δ: set at a chunk's first
+    // sample from the table, a·sin of that sample and of the one before, each within 6u·a
+    // (the table read's four roundings, its truncation 1.5·10⁻⁸ < u/4, the amplitude's
+    // product), then RESYNC − 1 recursions, each adding the rounding of its product and
+    // difference (≤ 3u·a, as |2cos Δ·y| ≤ 2a) and of the constant 2cos Δ ∈ [1, 2) (≤ u, times
+    // |y| ≤ a); an error made at one sample reappears n samples later times
+    // sin((n + 1)Δ)/sin Δ, at most 1/sin Δ. The f64 reference's phase (10⁻⁹ rad) is below it.
     let u = f64::from(f32::EPSILON) / 2.0;
-    let rotations = f64::from(RESYNC - 1);
-    let phasor_tol = u * (4.0 * 2f64.sqrt() + rotations * (1.0 + 2.0 * 2f64.sqrt()));
-    // The output: each tone's phasor error times its amplitude, and three roundings of the
-    // sum's magnitude (the two amplitude products, the sum of the tones).
-    let tol = (phasor_tol + 3.0 * u) * (aa1 + aa2);
+    let recursions = f64::from(RESYNC - 1);
+    let osc_tol = |a: f64, tone: &Tone<f32>| {
+        let delta = two_pi * f64::from(tone.increment) / 4_294_967_296.0;
+        (12.0 + 4.0 * recursions) * u * a / delta.sin()
+    };
+    let (tol1, tol2) = (osc_tol(aa1, &p.tone1), osc_tol(aa2, &p.tone2));
+    // The output: the tones' errors and the rounding of their sum.
+    let tol = tol1 + tol2 + u * (aa1 + aa2);
 
     let mut exc = Excitation::<f32>::default();
     exc.set_on(true);
     let mut worst = 0.0f64;
     let mut worst_at = 0;
-    // (c): the worst angle (rad) and modulus error of either phasor.
-    let (mut worst_angle, mut worst_modulus) = (0.0f64, 0.0f64);
+    // (c): the worst error of each tone's oscillator, as a fraction of its bound.
+    let mut worst_osc = [0.0f64; 2];
     let lock = 1_000_000u64; // 1 s windows: whole periods of both requested tones
     let mut start = [0.0f64; 4];
     let mut end = [0.0f64; 4];
@@ -70,14 +74,13 @@ fn excitation_follows_the_requested_tones_over_1e8_samples() {
         // (a) The tones at the representable frequencies: the requested phase plus 2π·Δf·t.
         let (th1, th2) = (x1 + two_pi * df1 * t, x2 + two_pi * df2 * t);
         let exact = aa1 * th1.sin() + aa2 * th2.sin();
-        // (c) The phasors against the exact angles: the cross product with the exact unit
-        // vector is the sine of the angle error, the dot product the modulus.
-        let (ph1, ph2) = exc.phasors();
-        for (ph, th) in [(ph1, th1), (ph2, th2)] {
-            let (c, s) = (f64::from(ph[0]), f64::from(ph[1]));
-            let (sin_t, cos_t) = th.sin_cos();
-            worst_angle = worst_angle.max((s * cos_t - c * sin_t).abs());
-            worst_modulus = worst_modulus.max((c * cos_t + s * sin_t - 1.0).abs());
+        // (c) Each tone's oscillator against the exact tone.
+        let (y1, y2) = exc.tone_values();
+        for (k, (y, a, th, tol_k)) in [(y1, aa1, th1, tol1), (y2, aa2, th2, tol2)]
+            .into_iter()
+            .enumerate()
+        {
+            worst_osc[k] = worst_osc[k].max((f64::from(y) - a * th.sin()).abs() / tol_k);
         }
         let err = (v - exact).abs();
         if err > worst {
@@ -123,17 +126,17 @@ fn excitation_follows_the_requested_tones_over_1e8_samples() {
         e2.1
     );
     println!(
-        "phasors over {N} samples: worst angle error {worst_angle:.2e} rad, worst modulus error \
-         {worst_modulus:.2e} (bound {phasor_tol:.2e}, for ever: every {RESYNC} samples the \
-         phasors start again from the exact integer phase)"
+        "oscillators over {N} samples: worst error {:.3} of the bound for tone 1 ({:.2e} nm of \
+         {a1} nm), {:.3} for tone 2 ({:.2e} nm of {a2} nm); bounded for ever: every {RESYNC} \
+         samples they start again from the exact integer phase",
+        worst_osc[0],
+        worst_osc[0] * tol1,
+        worst_osc[1],
+        worst_osc[1] * tol2
     );
     assert!(
-        worst_angle <= phasor_tol,
-        "phasor angle error {worst_angle} rad > {phasor_tol}"
-    );
-    assert!(
-        worst_modulus <= phasor_tol,
-        "phasor modulus error {worst_modulus} > {phasor_tol}"
+        worst_osc[0] <= 1.0 && worst_osc[1] <= 1.0,
+        "oscillator error above its bound: {worst_osc:?} of it"
     );
     assert!(worst <= tol, "worst error {worst} nm > {tol} nm");
     // A sample error of at most `tol` moves a lock-in's amplitude by at most 2·tol and its
