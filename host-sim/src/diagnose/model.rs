@@ -449,17 +449,12 @@ pub fn simulate(
     // from the one before it.
     let mut u_eff_prev = data.u[0];
     let mut u_eff_prev2 = data.u[0];
-    let dt_first = if n > 1 { data.t[1] - data.t[0] } else { 1.0 };
     // Without effects (every simulation of the nominal fit) nothing reads the contexts
     // unless the states are traced: they are not built (two force evaluations per sample).
     let bare = effects.is_empty();
     for i in 0..n {
         let ct = contact_of(i);
-        let dt = if i == 0 {
-            dt_first
-        } else {
-            data.t[i] - data.t[i - 1]
-        };
+        let dt = interval_before(data, i);
         let u_cmd = data.u[i];
         if i > 0 {
             let ctx0 = (!bare).then(|| context(ct, geo, data.t[i - 1], dt, z, v, u_cmd));
@@ -553,21 +548,26 @@ pub fn reading_with(
 ) -> Vec<f64> {
     let n = data.len().min(trace.v.len()).min(base.len());
     let geo = &BedGeometry::new(nom.bed, inst.r_tip);
-    let dt_first = if n > 1 { data.t[1] - data.t[0] } else { 1.0 };
     (0..n)
         .map(|i| {
             let ct = nom.contacts[data.unit[i].min(nom.contacts.len() - 1)];
-            let dt = if i == 0 {
-                dt_first
-            } else {
-                data.t[i] - data.t[i - 1]
-            };
+            let dt = interval_before(data, i);
             let ctx = context(ct, geo, data.t[i], dt, trace.z[i], trace.v[i], data.u[i]);
             let d = effect.measured_deflection_nm(&ctx, base[i] - nom.offset);
             effect.end_of_step(&ctx);
             d + nom.offset
         })
         .collect()
+}
+
+/// The interval (µs) that ends at sample `i`; the first sample's is taken as the next one's.
+#[inline]
+fn interval_before(data: &Data, i: usize) -> f64 {
+    match i {
+        0 if data.len() > 1 => data.t[1] - data.t[0],
+        0 => 1.0,
+        _ => data.t[i] - data.t[i - 1],
+    }
 }
 
 /// What the effects see at time `t` with the tip at (Z, Ż) and the commanded U.

@@ -570,10 +570,7 @@ impl Problem {
             cand.kind.reading_only().then_some(&mut base_trace),
         );
         *evals += 1;
-        let sim_base = self.on_fit(&base_full);
-        if !sim_base.iter().all(|x| x.is_finite()) {
-            return None;
-        }
+        let sim_base = self.finite_on_fit(&base_full)?;
         let amp_idx: Vec<usize> = (0..cand.params.len())
             .filter(|&j| !cand.params[j].shape)
             .collect();
@@ -610,13 +607,7 @@ impl Problem {
                 let probe = cand.params[j].grid[0];
                 v[j] = probe;
                 let sim = match self.reading_added(base, env, cand, &v, &base_full, &base_trace) {
-                    Some(full) => {
-                        let s = self.on_fit(&full);
-                        if !s.iter().all(|x| x.is_finite()) {
-                            return None;
-                        }
-                        s
-                    }
+                    Some(full) => self.finite_on_fit(&full)?,
                     None => {
                         let mut mm = base.clone();
                         mm.effects.push((cand.clone(), v));
@@ -837,7 +828,12 @@ impl Problem {
     }
 
     fn fit_sim(&self, m: &Model, env: &Env) -> Option<Vec<f64>> {
-        let out = self.on_fit(&self.simulate(m, env, None));
+        self.finite_on_fit(&self.simulate(m, env, None))
+    }
+
+    /// The values of a simulated reading at the fit samples, `None` if any is not finite.
+    fn finite_on_fit(&self, sim: &[f64]) -> Option<Vec<f64>> {
+        let out = self.on_fit(sim);
         out.iter().all(|x| x.is_finite()).then_some(out)
     }
 
