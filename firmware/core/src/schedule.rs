@@ -446,6 +446,77 @@ impl<T: Real> EstimatorTask<T> {
         }
     }
 
+    /// [`Self::run`] on a block's samples in a buffer the task owns (the firmware's block
+    /// buffers, `samples` the `skip` to discard, then the block's own): the same operations
+    /// in the same order for every value, so the same result bit for bit, in two passes that
+    /// each keep their state in registers. First the filters over every sample, their states
+    /// in locals across the block, each estimating sample's `w` and `φ` written over its own
+    /// slot (`z`, `u`, `r` ← `w`, `φ₁`, `φ₂`; `φ₃` is 1) and the other slots' flags cleared;
+    /// then the block sums over the slots. In one pass the filters, the sums and their
+    /// constants outnumber the FPU's 32 registers and spill (three parameters: the filter
+    /// states were kept in memory instead, loaded and stored every sample).
+    ///
+    /// Out of line: as arguments, `&mut self` and the buffer are known apart; inlined into
+    /// the estimator interrupt, which takes the buffer out of a queue, the compiler could not
+    /// tell, and would order every sample's loads after the previous sample's stores.
+    #[inline(never)]
+    pub fn run_in_place(&mut self, b: &Block<T>, samples: &mut [Sample<T>]) -> BlockResult<T> {
+        let take = b.skip.wrapping_add(b.samples) as usize;
+        let samples = match samples.get_mut(..take) {
+            Some(s) => s,
+            None => samples,
+        };
+        let skip = b.skip as usize;
+        let target = b.target;
+        let (ip, ai) = self.acc(target);
+        let p = &self.p;
+        let (mut reg, mut hp) = (self.reg, self.hp);
+        let mut it = samples.iter_mut();
+        for x in it.by_ref().take(skip) {
+            feed_filters(p, &mut reg, &mut hp, x);
+        }
+        for x in it {
+            match feed_filters(p, &mut reg, &mut hp, x) {
+                Some((w, phi)) => {
+                    x.z = w;
+                    x.u = phi[0];
+                    x.r = phi[1];
+                    x.flags = SAMPLE_EST;
+                }
+                None => x.flags = 0,
+            }
+        }
+        (self.reg, self.hp) = (reg, hp);
+        let own = samples.iter().skip(skip);
+        let mut n = 0u32;
+        if target.two() {
+            let mut s = BlockStats::<T, 2>::default();
+            for x in own {
+                if x.flags != 0 {
+                    s.add(ip, ai, x.z, &[x.u, x.r]);
+                    n += 1;
+                }
+            }
+            // A copy for the update (see `run`).
+            let s = core::hint::black_box(s);
+            self.restarts(b);
+            let bi = (n != 0).then(|| self.update2(target, &s));
+            self.finish(b, bi)
+        } else {
+            let mut s = BlockStats::<T, 3>::default();
+            for x in own {
+                if x.flags != 0 {
+                    s.add(ip, ai, x.z, &[x.u, x.r, T::ONE]);
+                    n += 1;
+                }
+            }
+            let s = core::hint::black_box(s);
+            self.restarts(b);
+            let bi = (n != 0).then(|| self.update3(target, &s));
+            self.finish(b, bi)
+        }
+    }
+
     /// One block whose sums are formed already ([`BlockSums`], the host's in-line task):
     /// restarts first, then the block update and the divergence watch.
     #[inline(always)]
