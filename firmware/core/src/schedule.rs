@@ -448,13 +448,14 @@ impl<T: Real> EstimatorTask<T> {
 
     /// [`Self::run`] on a block's samples in a buffer the task owns (the firmware's block
     /// buffers, `samples` the `skip` to discard, then the block's own): the same operations
-    /// in the same order for every value, so the same result bit for bit, in two passes that
-    /// each keep their state in registers. First the filters over every sample, their states
-    /// in locals across the block, each estimating sample's `w` and `φ` written over its own
-    /// slot (`z`, `u`, `r` ← `w`, `φ₁`, `φ₂`; `φ₃` is 1) and the other slots' flags cleared;
-    /// then the block sums over the slots. In one pass the filters, the sums and their
-    /// constants outnumber the FPU's 32 registers and spill (three parameters: the filter
-    /// states were kept in memory instead, loaded and stored every sample).
+    /// in the same order for every value, so the same result bit for bit, in passes that each
+    /// keep their state in registers: the prefilters over every sample, their states in
+    /// locals across the block, each flagged sample's `w` and `φ` written over its own slot
+    /// (`z`, `u`, `r` ← `w`, `φ₁`, `φ₂`; `φ₃` is 1); the SVE high-passes over the slots, when
+    /// a sample asks for them; the block sums over the block's estimating slots. In one pass
+    /// the filters, the high-passes, the sums and their constants outnumber the FPU's 32
+    /// registers and spill (three parameters: the filter states were kept in memory instead,
+    /// loaded and stored every sample).
     ///
     /// Out of line: as arguments, `&mut self` and the buffer are known apart; inlined into
     /// the estimator interrupt, which takes the buffer out of a queue, the compiler could not
@@ -470,29 +471,43 @@ impl<T: Real> EstimatorTask<T> {
         let target = b.target;
         let (ip, ai) = self.acc(target);
         let p = &self.p;
-        let (mut reg, mut hp) = (self.reg, self.hp);
-        let mut it = samples.iter_mut();
-        for x in it.by_ref().take(skip) {
-            feed_filters(p, &mut reg, &mut hp, x);
-        }
-        for x in it {
-            match feed_filters(p, &mut reg, &mut hp, x) {
-                Some((w, phi)) => {
-                    x.z = w;
-                    x.u = phi[0];
-                    x.r = phi[1];
-                    x.flags = SAMPLE_EST;
-                }
-                None => x.flags = 0,
+        // The prefilters: every sample; a flagged one's w, φ₁, φ₂ over its slot.
+        let mut reg = self.reg;
+        let mut hp_flags = 0;
+        for x in samples.iter_mut() {
+            reg.update(&p.reg, x.u, x.z);
+            if x.flags != 0 {
+                let w = reg.w(&p.reg);
+                let phi = reg.phi_sve(x.r);
+                (x.z, x.u, x.r) = (w, phi[0], phi[1]);
+                hp_flags |= x.flags;
             }
         }
-        (self.reg, self.hp) = (reg, hp);
+        self.reg = reg;
+        // The SVE high-passes (only when a sample asks for them): over the slots, in order.
+        if hp_flags & (SAMPLE_HP | SAMPLE_HP_REST) != 0 {
+            let a = p.highpass;
+            let mut hp = self.hp;
+            for x in samples.iter_mut() {
+                if x.flags & SAMPLE_HP_REST != 0 {
+                    hp = [
+                        HighPass::at_rest(x.z),
+                        HighPass::at_rest(x.u),
+                        HighPass::at_rest(x.r),
+                    ];
+                    x.flags = 0;
+                } else if x.flags & SAMPLE_HP != 0 {
+                    (x.z, x.u, x.r) = (hp[0].update(a, x.z), hp[1].update(a, x.u), hp[2].update(a, x.r));
+                }
+            }
+            self.hp = hp;
+        }
         let own = samples.iter().skip(skip);
         let mut n = 0u32;
         if target.two() {
             let mut s = BlockStats::<T, 2>::default();
             for x in own {
-                if x.flags != 0 {
+                if x.flags & SAMPLE_EST != 0 {
                     s.add(ip, ai, x.z, &[x.u, x.r]);
                     n += 1;
                 }
@@ -505,7 +520,7 @@ impl<T: Real> EstimatorTask<T> {
         } else {
             let mut s = BlockStats::<T, 3>::default();
             for x in own {
-                if x.flags != 0 {
+                if x.flags & SAMPLE_EST != 0 {
                     s.add(ip, ai, x.z, &[x.u, x.r, T::ONE]);
                     n += 1;
                 }
