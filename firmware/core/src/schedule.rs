@@ -7,8 +7,9 @@
 //! loop. Every N samples the step closes a [`Block`] (a header: restarts, epoch, target, how
 //! many samples), which the estimator task ([`EstimatorTask::run`]: the samples through the
 //! filters, the block sums [`BlockStats`] over the estimating ones, the block update of
-//! [`crate::estimator`] and the divergence watch) turns into a [`BlockResult`]. On the firmware the task is a lower-priority interrupt fed through two
-//! lock-free queues (samples, headers); on the host it runs in-line, its sums added as the
+//! [`crate::estimator`] and the divergence watch) turns into a [`BlockResult`]. On the firmware the task is a lower-priority interrupt handed each
+//! block whole (its header and samples in a buffer passed through a lock-free queue) and runs
+//! it in passes on the buffer ([`EstimatorTask::run_in_place`]); on the host it runs in-line, its sums added as the
 //! samples come ([`BlockSums`]). Both follow the same schedule and add the same samples in the
 //! same order, so their results are bit-identical:
 //!
@@ -384,7 +385,8 @@ impl<T: Real> EstimatorTask<T> {
         }
     }
 
-    /// One block: `samples` yields the samples queued for it in order, first the `b.skip` to
+    /// One block (the reference form; the firmware runs [`Self::run_in_place`]): `samples`
+    /// yields the samples handed over for it in order, first the `b.skip` to
     /// discard (they only feed the filters), then the block's `b.samples` (the estimating
     /// ones also into the block sums); at most `b.skip + b.samples` are taken. Then the
     /// restarts, the block update (when the block had an estimating sample) and the
