@@ -289,6 +289,30 @@ fn feed_filters<T: Real>(
     (x.flags & SAMPLE_EST != 0).then_some((w, phi))
 }
 
+/// The SVE high-passes' part of [`feed_filters`] on a slot that holds a flagged sample's `w`,
+/// `φ₁`, `φ₂` ([`EstimatorTask::run_in_place`]): set at rest ([`SAMPLE_HP_REST`]), or through
+/// them ([`SAMPLE_HP`]), or not; `w` and `φ₁`, `φ₂` when it is an estimating one.
+#[inline(always)]
+fn high_pass<T: Real>(a: T, hp: &mut [HighPass<T>; 3], x: &Sample<T>) -> Option<(T, [T; 2])> {
+    if x.flags & SAMPLE_HP_REST != 0 {
+        *hp = [
+            HighPass::at_rest(x.z),
+            HighPass::at_rest(x.u),
+            HighPass::at_rest(x.r),
+        ];
+        return None;
+    }
+    let v = if x.flags & SAMPLE_HP != 0 {
+        (
+            hp[0].update(a, x.z),
+            [hp[1].update(a, x.u), hp[2].update(a, x.r)],
+        )
+    } else {
+        (x.z, [x.u, x.r])
+    };
+    (x.flags & SAMPLE_EST != 0).then_some(v)
+}
+
 impl<T: Real> EstimatorTask<T> {
     /// The estimators at DIVE's θ̂₀ with P₀, the prefilters at rest with the tip and the
     /// base at `u0`.
@@ -450,14 +474,14 @@ impl<T: Real> EstimatorTask<T> {
 
     /// [`Self::run`] on a block's samples in a buffer the task owns (the firmware's block
     /// buffers, `samples` the `skip` to discard, then the block's own): the same operations
-    /// in the same order for every value, so the same result bit for bit, in passes that each
-    /// keep their state in registers: the prefilters over every sample, their states in
+    /// in the same order for every value, so the same result bit for bit, in two passes that
+    /// each keep their state in registers: the prefilters over every sample, their states in
     /// locals across the block, each flagged sample's `w` and `φ` written over its own slot
-    /// (`z`, `u`, `r` ← `w`, `φ₁`, `φ₂`; `φ₃` is 1); the SVE high-passes over the slots, when
-    /// a sample asks for them; the block sums over the block's estimating slots. In one pass
-    /// the filters, the high-passes, the sums and their constants outnumber the FPU's 32
+    /// (`z`, `u`, `r` ← `w`, `φ₁`, `φ₂`; `φ₃` is 1); then over the slots the SVE high-passes,
+    /// when a sample asks for them, and the block sums of the block's estimating ones. In one
+    /// pass the filters, the high-passes, the sums and their constants outnumber the FPU's 32
     /// registers and spill (three parameters: the filter states were kept in memory instead,
-    /// loaded and stored every sample).
+    /// loaded and stored every sample); the high-passes with the sums fit.
     ///
     /// Out of line: as arguments, `&mut self` and the buffer are known apart; inlined into
     /// the estimator interrupt, which takes the buffer out of a queue, the compiler could not
@@ -486,32 +510,37 @@ impl<T: Real> EstimatorTask<T> {
             }
         }
         self.reg = reg;
-        // The SVE high-passes (only when a sample asks for them): over the slots, in order.
-        if hp_flags & (SAMPLE_HP | SAMPLE_HP_REST) != 0 {
-            let a = p.highpass;
-            let mut hp = self.hp;
-            for x in samples.iter_mut() {
-                if x.flags & SAMPLE_HP_REST != 0 {
-                    hp = [
-                        HighPass::at_rest(x.z),
-                        HighPass::at_rest(x.u),
-                        HighPass::at_rest(x.r),
-                    ];
-                    x.flags = 0;
-                } else if x.flags & SAMPLE_HP != 0 {
-                    (x.z, x.u, x.r) = (hp[0].update(a, x.z), hp[1].update(a, x.u), hp[2].update(a, x.r));
-                }
-            }
-            self.hp = hp;
-        }
-        let own = samples.iter().skip(skip);
+        let samples: &[Sample<T>] = samples;
+        // The SVE high-passes (only when a sample asks for them), in order over the slots, the
+        // block's own estimating ones then into the sums: the high-passes' states and the
+        // sums fit the registers together.
+        let hp_on = hp_flags & (SAMPLE_HP | SAMPLE_HP_REST) != 0;
+        let a = p.highpass;
+        let (head, own) = match (samples.get(..skip), samples.get(skip..)) {
+            (Some(h), Some(o)) => (h, o),
+            _ => (samples, &[][..]),
+        };
         let mut n = 0u32;
         if target.two() {
             let mut s = BlockStats::<T, 2>::default();
-            for x in own {
-                if x.flags & SAMPLE_EST != 0 {
-                    s.add(ip, ai, x.z, &[x.u, x.r]);
-                    n += 1;
+            if hp_on {
+                let mut hp = self.hp;
+                for x in head {
+                    high_pass(a, &mut hp, x);
+                }
+                for x in own {
+                    if let Some((w, phi)) = high_pass(a, &mut hp, x) {
+                        s.add(ip, ai, w, &phi);
+                        n += 1;
+                    }
+                }
+                self.hp = hp;
+            } else {
+                for x in own {
+                    if x.flags & SAMPLE_EST != 0 {
+                        s.add(ip, ai, x.z, &[x.u, x.r]);
+                        n += 1;
+                    }
                 }
             }
             // A copy for the update (see `run`).
@@ -521,10 +550,24 @@ impl<T: Real> EstimatorTask<T> {
             self.finish(b, bi)
         } else {
             let mut s = BlockStats::<T, 3>::default();
-            for x in own {
-                if x.flags & SAMPLE_EST != 0 {
-                    s.add(ip, ai, x.z, &[x.u, x.r, T::ONE]);
-                    n += 1;
+            if hp_on {
+                let mut hp = self.hp;
+                for x in head {
+                    high_pass(a, &mut hp, x);
+                }
+                for x in own {
+                    if let Some((w, phi)) = high_pass(a, &mut hp, x) {
+                        s.add(ip, ai, w, &[phi[0], phi[1], T::ONE]);
+                        n += 1;
+                    }
+                }
+                self.hp = hp;
+            } else {
+                for x in own {
+                    if x.flags & SAMPLE_EST != 0 {
+                        s.add(ip, ai, x.z, &[x.u, x.r, T::ONE]);
+                        n += 1;
+                    }
                 }
             }
             let s = core::hint::black_box(s);
