@@ -5,8 +5,8 @@
 //! (`ESTIMATOR`) to the lower-priority estimator interrupt. The main loop touches them only
 //! through [`with_loop`] / [`with_both`], which mask the interrupts for the duration (a few
 //! hundred cycles, only on configuration commands, never per sample). Data moves through
-//! lock-free `heapless::spsc` queues: telemetry loop → main, the samples of a running mode and block
-//! headers loop → estimator, results estimator → loop, and on QEMU replay samples main → loop; core commands main → loop are a
+//! lock-free `heapless::spsc` queues: telemetry loop → main, the blocks of a running mode (header
+//! and samples, in buffers passed by reference and handed back) loop → estimator, results estimator → loop, and on QEMU replay samples main → loop; core commands main → loop are a
 //! command byte.
 
 use crate::board;
@@ -14,10 +14,10 @@ use core::cell::UnsafeCell;
 use core::sync::atomic::Ordering;
 use heapless::spsc::{Consumer, Queue};
 use visco_firmware::core_glue::{self, CoreCommand, LoopCore, StagedConfig};
-use visco_firmware::core_glue::{Block, BlockResult, Sample};
+use visco_firmware::core_glue::BlockResult;
 use visco_firmware::loop_body::{
-    CommandSlot, Counters, EstimatorState, Item, QueueLink, ESTIMATOR_DEPTH, SAMPLE_DEPTH,
-    TELEMETRY_DEPTH,
+    BlockBuf, CommandSlot, Counters, EstimatorState, Item, QueueLink, SampleBlock, BLOCK_BUFFERS,
+    BUFFER_SLOTS, ESTIMATOR_DEPTH, TELEMETRY_DEPTH,
 };
 use visco_protocol::{
     ack, frame, param, Command, ConfigRejectedFrame, FrameDecoder, PerSample, SeqTracker,
@@ -228,20 +228,27 @@ pub fn run() -> ! {
         Ok(b) => (b.core, b.task, b.adc),
         Err(_) => board::fatal(5),
     };
-    // The estimator's queues: samples and block headers loop → estimator, results back.
-    let (Some(blocks), Some(samples), Some(results)) = (
-        cortex_m::singleton!(: Queue<Block, { ESTIMATOR_DEPTH + 1 }> = Queue::new()),
-        cortex_m::singleton!(: Queue<Sample, { SAMPLE_DEPTH + 1 }> = Queue::new()),
+    // The estimator's queues: block buffers loop → estimator full and back free, results
+    // back. The buffers circulate by reference; one stages, the others start free.
+    let (Some(bufs), Some(blocks), Some(free), Some(results)) = (
+        cortex_m::singleton!(: [SampleBlock; BLOCK_BUFFERS] = [SampleBlock::new(); BLOCK_BUFFERS]),
+        cortex_m::singleton!(: Queue<BlockBuf<'static>, BUFFER_SLOTS> = Queue::new()),
+        cortex_m::singleton!(: Queue<BlockBuf<'static>, BUFFER_SLOTS> = Queue::new()),
         cortex_m::singleton!(: Queue<BlockResult, { ESTIMATOR_DEPTH + 1 }> = Queue::new()),
     ) else {
         board::fatal(11)
     };
     let (block_tx, block_rx) = blocks.split();
-    let (sample_tx, sample_rx) = samples.split();
+    let (mut free_tx, free_rx) = free.split();
     let (result_tx, result_rx) = results.split();
+    let [stage, rest @ ..] = bufs;
+    for b in rest {
+        let _ = free_tx.enqueue(b);
+    }
     let link = QueueLink::new(
+        stage,
         block_tx,
-        sample_tx,
+        free_rx,
         result_rx,
         board::pend_estimator,
         &COUNTERS,
@@ -253,7 +260,7 @@ pub fn run() -> ! {
         ESTIMATOR.set(EstimatorState {
             task,
             blocks: block_rx,
-            samples: sample_rx,
+            free: free_tx,
             results: result_tx,
         })
     };

@@ -1,7 +1,7 @@
 //! What the loop interrupt does for one sample, independent of the board:
-//! command → ADC → at a block close: the estimator's result adopted and the block's header
-//! handed to the estimator → `step` (while a mode runs, the sample's Z and U queued for the
-//! estimator task, which runs the prefilters and the regressor) → DAC → lateral outputs →
+//! command → ADC → at a block close: the estimator's result adopted and the block (its header
+//! and samples) handed to the estimator → `step` (while a mode runs, the sample's Z and U
+//! staged for the estimator task, which runs the prefilters and the regressor) → DAC → lateral outputs →
 //! telemetry.
 //!
 //! It never blocks, never allocates and has no panic path: a missing ADC sample is counted
@@ -57,11 +57,11 @@ pub struct Counters {
     /// Estimator results not back when due (the estimator interrupt overran its N samples;
     /// the result is adopted at the next block close instead).
     pub estimator_late: AtomicU32,
-    /// Blocks lost to a full estimator queue (their queued samples are discarded by the task).
+    /// Blocks lost to a full estimator queue (with their samples).
     pub blocks_dropped: AtomicU32,
-    /// Samples lost to a full sample queue (the estimator interrupt more than
-    /// [`SAMPLE_DEPTH`] samples behind). The block they belong to is handed over without
-    /// information: the task discards its queued samples, applies its restarts, and θ̂ stays.
+    /// Samples that did not fit a block's [`BLOCK_MAX`] (never, by the schedule). The block
+    /// they belong to is handed over without information: its samples only feed the filters,
+    /// its restarts apply, and θ̂ stays.
     pub samples_dropped: AtomicU32,
 }
 
@@ -85,20 +85,83 @@ fn bump(c: &AtomicU32) {
     c.store(c.load(Ordering::Relaxed).wrapping_add(1), Ordering::Relaxed);
 }
 
-/// Block headers (and results) the queues between the loop and the estimator interrupt hold:
-/// one is in flight by the schedule (`visco_core::schedule`); the rest is slack for an overrun.
+/// Blocks (and results) the queues between the loop and the estimator interrupt hold: one is
+/// in flight by the schedule (`visco_core::schedule`); the rest is slack for an overrun.
 pub const ESTIMATOR_DEPTH: usize = 4;
 
-/// Samples the loop → estimator sample queue holds (`heapless::spsc::Queue` of this + 1
-/// slots, a power of two, so that its indices wrap with a mask): up to two blocks of
-/// the largest N (64) wait by the schedule (the block being handed over and the one the task
-/// works on), the rest is slack for an overrun.
-pub const SAMPLE_DEPTH: usize = 255;
+/// Block buffers ([`SampleBlock`]) in circulation: the one the loop stages into and up to
+/// [`ESTIMATOR_DEPTH`] handed over.
+pub const BLOCK_BUFFERS: usize = ESTIMATOR_DEPTH + 1;
+
+/// Slots of the queues that move block buffers (loop → task full, task → loop free): a power
+/// of two (the indices wrap with a mask) holding every buffer, so neither is ever full.
+pub const BUFFER_SLOTS: usize = 8;
+
+/// The most samples one block hands over: the largest block (`estimator.decimation` ≤ 64).
+/// A block's samples after a restart and those before it to discard are one window of the
+/// sample clock, so they fit too.
+pub const BLOCK_MAX: usize = 64;
+
+/// One block handed over whole, loop → estimator task: its header and its samples (the
+/// `skip` to discard first, then the block's own). The buffers circulate by reference (a
+/// pointer per queue item, no copy): the loop writes the samples of a block into the one it
+/// holds, hands it over at the close and takes a free one back, and the task reads the
+/// samples as a slice, so its filters stay in registers across the block, without a queue
+/// operation (and its barriers) per sample.
+#[derive(Clone, Copy, Debug)]
+pub struct SampleBlock {
+    /// What the block is for, and how many of `samples` to discard and to use.
+    pub header: Block,
+    /// Samples staged, `header.skip + header.samples` (at most [`BLOCK_MAX`]).
+    pub n: u32,
+    /// The samples, in order; those from `n` on are stale.
+    pub samples: [Sample; BLOCK_MAX],
+}
+
+impl SampleBlock {
+    /// Empty, before the first sample.
+    pub const fn new() -> Self {
+        Self {
+            header: Block {
+                restart: None,
+                restart_watch: false,
+                epoch: 0,
+                target: visco_core::schedule::Target::Dive2,
+                skip: 0,
+                samples: 0,
+            },
+            n: 0,
+            samples: [Sample {
+                z: <Number as visco_core::Real>::ZERO,
+                u: <Number as visco_core::Real>::ZERO,
+                r: <Number as visco_core::Real>::ZERO,
+                flags: 0,
+            }; BLOCK_MAX],
+        }
+    }
+
+    /// The staged samples.
+    #[inline(always)]
+    pub fn staged(&mut self) -> &mut [Sample] {
+        let n = self.n as usize;
+        self.samples.get_mut(..n).unwrap_or(&mut [])
+    }
+}
+
+impl Default for SampleBlock {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// A block buffer, owned by whichever side holds the reference.
+pub type BlockBuf<'a> = &'a mut SampleBlock;
 
 /// The loop's end of the estimator task: the samples of a running mode (the [`SampleSink`])
 /// and block headers out, results back.
 pub trait EstimatorLink: SampleSink<Number> {
-    /// Hands over a block header (and wakes the task); false when the queue is full.
+    /// Hands over a block header with the samples since the last one (and wakes the task);
+    /// false when the block is lost.
     fn send(&mut self, b: Block) -> bool;
     /// The next result, if the task has one.
     fn receive(&mut self) -> Option<BlockResult>;
@@ -107,91 +170,98 @@ pub trait EstimatorLink: SampleSink<Number> {
     fn reset(&mut self) {}
 }
 
-/// The firmware's link: three `heapless::spsc` queues and the estimator interrupt pended.
+/// The firmware's link: the block buffer being staged, two `heapless::spsc` queues of block
+/// buffers (full ones to the task, free ones back), the results queue and the estimator
+/// interrupt pended.
 ///
-/// A full queue loses what did not fit, deterministically, and keeps the task's reading of
-/// the sample queue in step with the headers: a sample that does not fit is counted
-/// (`samples_dropped`), and the next header then hands over its block without information
-/// (its queued samples to be discarded); a header that does not fit is counted
-/// (`blocks_dropped`), and its queued samples are discarded with the next header.
-pub struct QueueLink {
-    /// Loop → estimator, the block headers.
-    pub blocks: Producer<'static, Block>,
-    /// Loop → estimator, the samples.
-    pub samples: Producer<'static, Sample>,
-    /// Estimator → loop.
-    pub results: Consumer<'static, BlockResult>,
+/// The samples of a block are written into the staged buffer (no queue operation per sample);
+/// at the close the buffer is handed over and a free one taken. Losses are deterministic and
+/// lose whole blocks: a sample that does not fit the buffer (more than [`BLOCK_MAX`] since the
+/// last header, which the schedule never hands over) is counted (`samples_dropped`) and its
+/// block is handed over without information (`samples = 0`: its staged samples only feed the
+/// filters, its restarts apply, θ̂ stays); a block closed while no buffer is free (the task
+/// [`ESTIMATOR_DEPTH`] blocks behind) is lost with its samples (the caller counts it,
+/// `blocks_dropped`), and its buffer stages the next.
+pub struct QueueLink<'a, 'b> {
+    /// The block being staged: the samples since the last header.
+    stage: BlockBuf<'b>,
+    /// Loop → estimator, full buffers.
+    pub blocks: Producer<'a, BlockBuf<'b>>,
+    /// Estimator → loop, free buffers.
+    pub free: Consumer<'a, BlockBuf<'b>>,
+    /// Estimator → loop, results.
+    pub results: Consumer<'a, BlockResult>,
     /// Pends the estimator interrupt (the board's).
     pub pend: fn(),
     /// Where lost samples are counted.
-    pub counters: &'static Counters,
-    /// Samples that did not fit the queue since the last header.
+    pub counters: &'a Counters,
+    /// Samples that did not fit the staged buffer since the last header.
     lost: u32,
-    /// Samples in the queue whose header did not fit.
-    carry: u32,
 }
 
-impl QueueLink {
-    /// The link over the queues' loop ends.
+impl<'a, 'b> QueueLink<'a, 'b> {
+    /// The link over the queues' loop ends, staging into `stage` (the other buffers wait in
+    /// the free queue).
     pub fn new(
-        blocks: Producer<'static, Block>,
-        samples: Producer<'static, Sample>,
-        results: Consumer<'static, BlockResult>,
+        stage: BlockBuf<'b>,
+        blocks: Producer<'a, BlockBuf<'b>>,
+        free: Consumer<'a, BlockBuf<'b>>,
+        results: Consumer<'a, BlockResult>,
         pend: fn(),
-        counters: &'static Counters,
+        counters: &'a Counters,
     ) -> Self {
+        stage.n = 0;
         Self {
+            stage,
             blocks,
-            samples,
+            free,
             results,
             pend,
             counters,
             lost: 0,
-            carry: 0,
         }
-    }
-
-    /// The header after losses: samples of its block that did not fit make the whole block
-    /// one to discard; samples of lost headers are discarded first.
-    #[inline(always)]
-    fn amend(&mut self, mut b: Block) -> Block {
-        if self.lost != 0 {
-            // What of the header's samples (the discarded ones and the block's) is queued.
-            b.skip = b.skip.wrapping_add(b.samples).wrapping_sub(self.lost);
-            b.samples = 0;
-        }
-        b.skip = b.skip.wrapping_add(self.carry);
-        self.lost = 0;
-        self.carry = 0;
-        b
     }
 }
 
-impl SampleSink<Number> for QueueLink {
+impl SampleSink<Number> for QueueLink<'_, '_> {
     #[inline(always)]
     fn push(&mut self, s: Sample) {
-        if self.samples.enqueue(s).is_err() {
-            self.lost = self.lost.wrapping_add(1);
-            bump(&self.counters.samples_dropped);
+        let b = &mut *self.stage;
+        let n = b.n;
+        match b.samples.get_mut(n as usize) {
+            Some(slot) => {
+                *slot = s;
+                b.n = n + 1;
+            }
+            None => {
+                self.lost = self.lost.wrapping_add(1);
+                bump(&self.counters.samples_dropped);
+            }
         }
     }
 }
 
-impl EstimatorLink for QueueLink {
+impl EstimatorLink for QueueLink<'_, '_> {
     #[inline(always)]
     fn send(&mut self, b: Block) -> bool {
-        let b = if (self.lost | self.carry) != 0 {
-            self.amend(b)
-        } else {
-            b
+        let lost = core::mem::take(&mut self.lost);
+        let Some(next) = self.free.dequeue() else {
+            // No free buffer: the block is lost whole, its buffer stages the next.
+            self.stage.n = 0;
+            return false;
         };
-        let ok = match self.blocks.enqueue(b) {
-            Ok(()) => true,
-            Err(b) => {
-                self.carry = self.carry.wrapping_add(b.skip.wrapping_add(b.samples));
-                false
-            }
-        };
+        next.n = 0;
+        let full = core::mem::replace(&mut self.stage, next);
+        full.header = b;
+        if lost != 0 {
+            // Not all of the block's samples are staged: the staged ones only feed the
+            // filters.
+            full.header.skip = full.n;
+            full.header.samples = 0;
+        }
+        // Cannot be full: the queue holds every buffer. Were it full, the buffer would be
+        // dropped (out of circulation) and the block counted as lost.
+        let ok = self.blocks.enqueue(full).is_ok();
         (self.pend)();
         ok
     }
@@ -200,8 +270,8 @@ impl EstimatorLink for QueueLink {
         self.results.dequeue()
     }
     fn reset(&mut self) {
+        self.stage.n = 0;
         self.lost = 0;
-        self.carry = 0;
     }
 }
 
@@ -209,11 +279,11 @@ impl EstimatorLink for QueueLink {
 pub struct EstimatorState {
     /// The estimators.
     pub task: EstimatorTask,
-    /// Loop → estimator, the block headers.
-    pub blocks: Consumer<'static, Block>,
-    /// Loop → estimator, the samples.
-    pub samples: Consumer<'static, Sample>,
-    /// Estimator → loop.
+    /// Loop → estimator, full buffers.
+    pub blocks: Consumer<'static, BlockBuf<'static>>,
+    /// Estimator → loop, free buffers.
+    pub free: Producer<'static, BlockBuf<'static>>,
+    /// Estimator → loop, results.
     pub results: Producer<'static, BlockResult>,
 }
 
@@ -224,34 +294,36 @@ impl EstimatorState {
         run_blocks(
             &mut self.task,
             &mut self.blocks,
-            &mut self.samples,
+            &mut self.free,
             &mut self.results,
         );
     }
 
-    /// Empties the loop → estimator queues (thread mode, both interrupts masked).
+    /// Hands every waiting buffer back unread (thread mode, both interrupts masked).
     pub fn clear(&mut self) {
-        while self.blocks.dequeue().is_some() {}
-        while self.samples.dequeue().is_some() {}
+        while let Some(b) = self.blocks.dequeue() {
+            let _ = self.free.enqueue(b);
+        }
     }
 }
 
-/// Every waiting block, in order: its samples out of the queue through the task's filters
-/// (the ones to discard first, then the block's, the estimating ones into the block sums), the
-/// block update, the result queued back. A header is queued after all its samples, so they
-/// are there (should one be missing, the block takes those there are).
+/// Every waiting block, in order: its samples, in its buffer, through the task's filters (the
+/// ones to discard first, then the block's, the estimating ones into the block sums:
+/// `EstimatorTask::run_in_place`, which overwrites them), the block update, the result queued
+/// back, the buffer handed back free.
 #[inline(always)]
-pub fn run_blocks(
+pub fn run_blocks<'b>(
     task: &mut EstimatorTask,
-    blocks: &mut Consumer<'_, Block>,
-    samples: &mut Consumer<'_, Sample>,
+    blocks: &mut Consumer<'_, BlockBuf<'b>>,
+    free: &mut Producer<'_, BlockBuf<'b>>,
     results: &mut Producer<'_, BlockResult>,
 ) {
-    while let Some(b) = blocks.peek() {
-        let r = task.run(b, core::iter::from_fn(|| samples.dequeue()));
-        // The value is not read again: this only frees the slot.
-        let _ = blocks.dequeue();
-        // Cannot be full: at most as many results as blocks, and the queues are alike.
+    while let Some(b) = blocks.dequeue() {
+        let header = b.header;
+        let r = task.run_in_place(&header, b.staged());
+        // Neither can be full: the free queue holds every buffer, and there are at most as
+        // many results as blocks, the queues alike.
+        let _ = free.enqueue(b);
         let _ = results.enqueue(r);
     }
 }
@@ -516,8 +588,9 @@ mod tests {
         }
     }
 
-    /// A full sample queue and a full header queue lose what does not fit, count it, and keep
-    /// the task's reading of the samples in step with the headers.
+    /// A block with more samples than [`BLOCK_MAX`] and a block closed while the task holds
+    /// every buffer lose whole blocks, deterministically, and are counted; the task's filters see
+    /// exactly the samples of the blocks it was handed.
     #[test]
     fn full_queues_lose_whole_blocks_and_stay_in_step() {
         use visco_core::schedule::Target;
@@ -525,11 +598,19 @@ mod tests {
         fn leak<T, const N: usize>() -> &'static mut Queue<T, N> {
             std::boxed::Box::leak(std::boxed::Box::new(Queue::new()))
         }
-        let (btx, mut brx) = leak::<Block, { ESTIMATOR_DEPTH + 1 }>().split();
-        let (stx, mut srx) = leak::<Sample, { SAMPLE_DEPTH + 1 }>().split();
+        let (btx, mut brx) = leak::<BlockBuf<'static>, BUFFER_SLOTS>().split();
+        let (mut ftx, frx) = leak::<BlockBuf<'static>, BUFFER_SLOTS>().split();
         let (mut rtx, rrx) = leak::<BlockResult, { ESTIMATOR_DEPTH + 1 }>().split();
-        let mut link = QueueLink::new(btx, stx, rrx, || {}, &COUNTERS);
+        let bufs: &'static mut [SampleBlock; BLOCK_BUFFERS] =
+            std::boxed::Box::leak(std::boxed::Box::new([SampleBlock::new(); BLOCK_BUFFERS]));
+        let [stage, rest @ ..] = bufs;
+        for b in rest {
+            assert!(ftx.enqueue(b).is_ok());
+        }
+        let mut link = QueueLink::new(stage, btx, frx, rrx, || {}, &COUNTERS);
         let mut task = build_core(&StagedConfig::new(), None).unwrap().task;
+        // What the task should have seen: the same task fed only the blocks handed over.
+        let mut alone = task;
         let theta0 = task.theta(Target::Dive3);
         let header = |skip: u32, samples: u32| Block {
             restart: None,
@@ -540,48 +621,58 @@ mod tests {
             samples,
         };
         let v = |x: f64| <Number as visco_core::Real>::from_f64(x);
-        let x = Sample {
-            z: v(5.0),
-            u: v(1.0),
+        // Samples that differ, so that a sample fed twice, lost or out of order shows in θ̂.
+        let x = |k: u32| Sample {
+            z: v(5.0 + 0.01 * f64::from(k % 17)),
+            u: v(1.0 + 0.02 * f64::from(k % 5)),
             r: v(2.0),
             flags: visco_core::schedule::SAMPLE_EST,
         };
-        // The estimator stalled for 300 samples: 45 do not fit; the block (3 to discard after
-        // a restart, 297 its own) is handed over without information.
-        for _ in 0..300 {
-            link.push(x);
+        // 70 samples since the last header: 6 do not fit; the block (3 to discard after a
+        // restart, 67 its own) is handed over without information, its 64 staged samples
+        // through the filters only.
+        for k in 0..70 {
+            link.push(x(k));
         }
-        assert_eq!(COUNTERS.samples_dropped.load(Ordering::Relaxed), 45);
-        assert!(link.send(header(3, 297)));
-        let b = *brx.peek().unwrap();
-        assert_eq!((b.skip, b.samples), (255, 0));
-        run_blocks(&mut task, &mut brx, &mut srx, &mut rtx);
+        assert_eq!(COUNTERS.samples_dropped.load(Ordering::Relaxed), 6);
+        assert!(link.send(header(3, 67)));
+        let b = brx.peek().unwrap();
+        assert_eq!((b.header.skip, b.header.samples, b.n), (64, 0, 64));
+        run_blocks(&mut task, &mut brx, &mut ftx, &mut rtx);
         let r = link.receive().unwrap();
-        assert_eq!((r.flags, r.theta), (0, theta0));
-        assert!(srx.dequeue().is_none());
-        // Headers: four fit; the fifth is lost, and its sample is discarded with the next.
-        for k in 0..6 {
-            link.push(x);
-            assert_eq!(link.send(header(0, 1)), k < ESTIMATOR_DEPTH);
+        assert_eq!((r.flags, r.theta, r.updated), (0, theta0, false));
+        alone.run(&header(64, 0), (0..64).map(x));
+        // The task stalls: four blocks are handed over, the fifth finds no free buffer and is
+        // lost with its samples.
+        let mut k = 100;
+        for j in 0..ESTIMATOR_DEPTH + 1 {
+            for _ in 0..32 {
+                link.push(x(k));
+                k += 1;
+            }
+            assert_eq!(link.send(header(0, 32)), j < ESTIMATOR_DEPTH);
+            if j < ESTIMATOR_DEPTH {
+                alone.run(&header(0, 32), (k - 32..k).map(x));
+            }
         }
-        let skips: std::vec::Vec<(u32, u32)> = std::iter::from_fn(|| brx.dequeue())
-            .map(|b| (b.skip, b.samples))
-            .collect();
-        assert_eq!(skips, [(0, 1); ESTIMATOR_DEPTH]);
-        link.push(x);
-        assert!(link.send(header(0, 1)));
-        assert_eq!(brx.peek().map(|b| (b.skip, b.samples)), Some((2, 1)));
-        // In step: four samples taken, then the two lost headers' (through the filters) and
-        // this block's.
+        run_blocks(&mut task, &mut brx, &mut ftx, &mut rtx);
         for _ in 0..ESTIMATOR_DEPTH {
-            srx.dequeue();
+            assert!(link.receive().unwrap().updated);
         }
-        let mut alone = task;
-        let want = alone.run(&header(2, 1), [x; 3].into_iter());
-        run_blocks(&mut task, &mut brx, &mut srx, &mut rtx);
-        assert!(srx.dequeue().is_none());
+        assert!(link.receive().is_none());
+        // The next block goes through, its samples alone (none of the lost block's).
+        for _ in 0..32 {
+            link.push(x(k));
+            k += 1;
+        }
+        assert!(link.send(header(0, 32)));
+        run_blocks(&mut task, &mut brx, &mut ftx, &mut rtx);
+        let want = alone.run(&header(0, 32), (k - 32..k).map(x));
         let got = link.receive().unwrap();
+        assert!(got.updated);
+        assert_ne!(got.theta, theta0);
         assert_eq!((got.theta, got.flags), (want.theta, want.flags));
+        assert!(brx.peek().is_none());
     }
 
     #[test]

@@ -7,8 +7,9 @@
 //! loop. Every N samples the step closes a [`Block`] (a header: restarts, epoch, target, how
 //! many samples), which the estimator task ([`EstimatorTask::run`]: the samples through the
 //! filters, the block sums [`BlockStats`] over the estimating ones, the block update of
-//! [`crate::estimator`] and the divergence watch) turns into a [`BlockResult`]. On the firmware the task is a lower-priority interrupt fed through two
-//! lock-free queues (samples, headers); on the host it runs in-line, its sums added as the
+//! [`crate::estimator`] and the divergence watch) turns into a [`BlockResult`]. On the firmware the task is a lower-priority interrupt handed each
+//! block whole (its header and samples in a buffer passed through a lock-free queue) and runs
+//! it in passes on the buffer ([`EstimatorTask::run_in_place`]); on the host it runs in-line, its sums added as the
 //! samples come ([`BlockSums`]). Both follow the same schedule and add the same samples in the
 //! same order, so their results are bit-identical:
 //!
@@ -288,6 +289,30 @@ fn feed_filters<T: Real>(
     (x.flags & SAMPLE_EST != 0).then_some((w, phi))
 }
 
+/// The SVE high-passes' part of [`feed_filters`] on a slot that holds a flagged sample's `w`,
+/// `φ₁`, `φ₂` ([`EstimatorTask::run_in_place`]): set at rest ([`SAMPLE_HP_REST`]), or through
+/// them ([`SAMPLE_HP`]), or not; `w` and `φ₁`, `φ₂` when it is an estimating one.
+#[inline(always)]
+fn high_pass<T: Real>(a: T, hp: &mut [HighPass<T>; 3], x: &Sample<T>) -> Option<(T, [T; 2])> {
+    if x.flags & SAMPLE_HP_REST != 0 {
+        *hp = [
+            HighPass::at_rest(x.z),
+            HighPass::at_rest(x.u),
+            HighPass::at_rest(x.r),
+        ];
+        return None;
+    }
+    let v = if x.flags & SAMPLE_HP != 0 {
+        (
+            hp[0].update(a, x.z),
+            [hp[1].update(a, x.u), hp[2].update(a, x.r)],
+        )
+    } else {
+        (x.z, [x.u, x.r])
+    };
+    (x.flags & SAMPLE_EST != 0).then_some(v)
+}
+
 impl<T: Real> EstimatorTask<T> {
     /// The estimators at DIVE's θ̂₀ with P₀, the prefilters at rest with the tip and the
     /// base at `u0`.
@@ -384,7 +409,8 @@ impl<T: Real> EstimatorTask<T> {
         }
     }
 
-    /// One block: `samples` yields the samples queued for it in order, first the `b.skip` to
+    /// One block (the reference form; the firmware runs [`Self::run_in_place`]): `samples`
+    /// yields the samples handed over for it in order, first the `b.skip` to
     /// discard (they only feed the filters), then the block's `b.samples` (the estimating
     /// ones also into the block sums); at most `b.skip + b.samples` are taken. Then the
     /// restarts, the block update (when the block had an estimating sample) and the
@@ -437,6 +463,111 @@ impl<T: Real> EstimatorTask<T> {
                 if let Some((w, phi)) = feed_filters(p, reg, hp, &x) {
                     s.add(ip, ai, w, &phi);
                     n += 1;
+                }
+            }
+            let s = core::hint::black_box(s);
+            self.restarts(b);
+            let bi = (n != 0).then(|| self.update3(target, &s));
+            self.finish(b, bi)
+        }
+    }
+
+    /// [`Self::run`] on a block's samples in a buffer the task owns (the firmware's block
+    /// buffers, `samples` the `skip` to discard, then the block's own): the same operations
+    /// in the same order for every value, so the same result bit for bit, in two passes that
+    /// each keep their state in registers: the prefilters over every sample, their states in
+    /// locals across the block, each flagged sample's `w` and `φ` written over its own slot
+    /// (`z`, `u`, `r` ← `w`, `φ₁`, `φ₂`; `φ₃` is 1); then over the slots the SVE high-passes,
+    /// when a sample asks for them, and the block sums of the block's estimating ones. In one
+    /// pass the filters, the high-passes, the sums and their constants outnumber the FPU's 32
+    /// registers and spill (three parameters: the filter states were kept in memory instead,
+    /// loaded and stored every sample); the high-passes with the sums fit.
+    ///
+    /// Out of line: as arguments, `&mut self` and the buffer are known apart; inlined into
+    /// the estimator interrupt, which takes the buffer out of a queue, the compiler could not
+    /// tell, and would order every sample's loads after the previous sample's stores.
+    #[inline(never)]
+    pub fn run_in_place(&mut self, b: &Block<T>, samples: &mut [Sample<T>]) -> BlockResult<T> {
+        let take = b.skip.wrapping_add(b.samples) as usize;
+        let samples = match samples.get_mut(..take) {
+            Some(s) => s,
+            None => samples,
+        };
+        let skip = b.skip as usize;
+        let target = b.target;
+        let (ip, ai) = self.acc(target);
+        let p = &self.p;
+        // The prefilters: every sample; a flagged one's w, φ₁, φ₂ over its slot.
+        let mut reg = self.reg;
+        let mut hp_flags = 0;
+        for x in samples.iter_mut() {
+            reg.update(&p.reg, x.u, x.z);
+            if x.flags != 0 {
+                let w = reg.w(&p.reg);
+                let phi = reg.phi_sve(x.r);
+                (x.z, x.u, x.r) = (w, phi[0], phi[1]);
+                hp_flags |= x.flags;
+            }
+        }
+        self.reg = reg;
+        let samples: &[Sample<T>] = samples;
+        // The SVE high-passes (only when a sample asks for them), in order over the slots, the
+        // block's own estimating ones then into the sums: the high-passes' states and the
+        // sums fit the registers together.
+        let hp_on = hp_flags & (SAMPLE_HP | SAMPLE_HP_REST) != 0;
+        let a = p.highpass;
+        let (head, own) = match (samples.get(..skip), samples.get(skip..)) {
+            (Some(h), Some(o)) => (h, o),
+            _ => (samples, &[][..]),
+        };
+        let mut n = 0u32;
+        if target.two() {
+            let mut s = BlockStats::<T, 2>::default();
+            if hp_on {
+                let mut hp = self.hp;
+                for x in head {
+                    high_pass(a, &mut hp, x);
+                }
+                for x in own {
+                    if let Some((w, phi)) = high_pass(a, &mut hp, x) {
+                        s.add(ip, ai, w, &phi);
+                        n += 1;
+                    }
+                }
+                self.hp = hp;
+            } else {
+                for x in own {
+                    if x.flags & SAMPLE_EST != 0 {
+                        s.add(ip, ai, x.z, &[x.u, x.r]);
+                        n += 1;
+                    }
+                }
+            }
+            // A copy for the update (see `run`).
+            let s = core::hint::black_box(s);
+            self.restarts(b);
+            let bi = (n != 0).then(|| self.update2(target, &s));
+            self.finish(b, bi)
+        } else {
+            let mut s = BlockStats::<T, 3>::default();
+            if hp_on {
+                let mut hp = self.hp;
+                for x in head {
+                    high_pass(a, &mut hp, x);
+                }
+                for x in own {
+                    if let Some((w, phi)) = high_pass(a, &mut hp, x) {
+                        s.add(ip, ai, w, &[phi[0], phi[1], T::ONE]);
+                        n += 1;
+                    }
+                }
+                self.hp = hp;
+            } else {
+                for x in own {
+                    if x.flags & SAMPLE_EST != 0 {
+                        s.add(ip, ai, x.z, &[x.u, x.r, T::ONE]);
+                        n += 1;
+                    }
                 }
             }
             let s = core::hint::black_box(s);

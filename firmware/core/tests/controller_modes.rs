@@ -183,6 +183,9 @@ fn firmware_schedule_matches_step_bit_for_bit() {
         let mut host = Controller::<f32>::new(&cfg).unwrap();
         let mut fw = Controller::<f32>::new(&cfg).unwrap();
         let mut task = fw.estimator_task();
+        // The firmware's two-pass form on the same blocks (`run_in_place`, the samples in a
+        // buffer it overwrites), compared with `run` block by block.
+        let mut task2 = fw.estimator_task();
         let mut plant = AggregatePlant::paper(K, C, h, 1.0 / FS);
         plant.settle_at(cfg.approach.u_start_m / units::LENGTH);
         host.command(Command::Start(mode));
@@ -210,7 +213,15 @@ fn firmware_schedule_matches_step_bit_for_bit() {
                         b.skip
                     );
                     skipped += b.skip;
-                    result = Some(task.run(&b, queue.drain(..)));
+                    let mut buf: Vec<Sample<f32>> = queue.iter().copied().collect();
+                    let r2 = task2.run_in_place(&b, &mut buf);
+                    let r = task.run(&b, queue.drain(..));
+                    assert_eq!(
+                        (r.theta.map(f32::to_bits), r.flags, r.epoch, r.updated),
+                        (r2.theta.map(f32::to_bits), r2.flags, r2.epoch, r2.updated),
+                        "{mode:?}: block {blocks} in place"
+                    );
+                    result = Some(r);
                     blocks += 1;
                 });
             }

@@ -23,11 +23,14 @@ use embedded_hal::digital::{ErrorType as PinErrorType, OutputPin};
 use embedded_hal::spi::{ErrorType as SpiErrorType, SpiBus};
 use heapless::spsc::{Consumer, Producer, Queue};
 use visco_firmware::core_glue::{
-    ActiveCore, Block, BlockResult, CoreCommand, LoopCore, LoopReal, Mode, Number, Sample,
+    ActiveCore, BlockResult, CoreCommand, LoopCore, LoopReal, Mode, Number, Sample,
 };
 use visco_firmware::drivers::ad4000::{self, part, Ad4000, CFG_TURBO};
 use visco_firmware::drivers::ad5541::Ad5541;
-use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, QueueLink};
+use visco_firmware::loop_body::{
+    self, BlockBuf, CommandSlot, Counters, EstimatorLink, Item, LoopState, QueueLink,
+    SampleBlock,
+};
 use visco_firmware::scale::Scale;
 use visco_firmware::spi_device::CsDevice;
 use visco_protocol::{
@@ -354,7 +357,7 @@ impl loop_body::XyOutput for QemuXy {
     }
 }
 
-pub type Loop = LoopState<QemuAdc, QemuU, QemuXy, ActiveCore, QueueLink>;
+pub type Loop = LoopState<QemuAdc, QemuU, QemuXy, ActiveCore, QueueLink<'static, 'static>>;
 
 // ---- UART0 host link. ----
 
@@ -459,7 +462,7 @@ pub fn make_loop(
     b: &mut Board,
     adc_scale: Scale,
     core: ActiveCore,
-    link: QueueLink,
+    link: QueueLink<'static, 'static>,
     tel: Producer<'static, Item>,
     cmds: &'static CommandSlot,
     counters: &'static Counters,
@@ -813,7 +816,7 @@ fn systick_now() -> u32 {
 
 /// SysTick ticks of `step` over `table` on a copy of `core` (the interrupt's ADC conversion
 /// in front of each call), of the same loop without the call, and of the estimator task's
-/// work over the same input — its samples taken from the sample queue into the block sums,
+/// work over the same input — each block's samples read in its queue slot into the block sums,
 /// and the block updates — (with the number of blocks); interrupts masked.
 fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32, u32, u32) {
     let mut copy = core.clone();
@@ -854,43 +857,47 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32,
         // The estimator task's share, timed where it runs: `step` again on another copy,
         // its samples and block headers through queues like the firmware's, the result
         // adopted at each block close, and at every close the estimator interrupt's body
-        // (`loop_body::run_blocks`: the block's samples out of the queue into the block sums,
+        // (`loop_body::run_blocks`: the block's samples, read in its queue slot, into the block sums,
         // the block update, the result queued) on a copy of the task between two SysTick
         // reads (their own cost, one load each, is part of the figure). Timing the task
         // itself, rather than the difference of two loops of `step` that the compiler lays
         // out differently (±10 per sample), puts the hand-over (samples and header queued)
         // on the loop's side, where the firmware runs it.
-        let mut samples: Queue<Sample, { loop_body::SAMPLE_DEPTH + 1 }> = Queue::new();
-        let mut headers: Queue<Block, { loop_body::ESTIMATOR_DEPTH + 1 }> = Queue::new();
+        let mut bufs = [SampleBlock::new(); loop_body::BLOCK_BUFFERS];
+        let mut full: Queue<BlockBuf, { loop_body::BUFFER_SLOTS }> = Queue::new();
+        let mut free: Queue<BlockBuf, { loop_body::BUFFER_SLOTS }> = Queue::new();
         let mut results: Queue<BlockResult, { loop_body::ESTIMATOR_DEPTH + 1 }> = Queue::new();
-        let (mut s_tx, mut s_rx) = samples.split();
-        let (mut h_tx, mut h_rx) = headers.split();
-        let (mut r_tx, mut r_rx) = results.split();
+        let (b_tx, mut b_rx) = full.split();
+        let (mut f_tx, f_rx) = free.split();
+        let (mut r_tx, r_rx) = results.split();
+        let [stage, rest @ ..] = &mut bufs;
+        for b in rest {
+            let _ = f_tx.enqueue(b);
+        }
+        let counters = Counters::new();
+        let mut link = QueueLink::new(stage, b_tx, f_rx, r_rx, || {}, &counters);
         let mut blocks = 0u32;
         let mut est = 0u32;
         for &c in table {
             let d = scale.to_input(c as i32);
             let core = core::hint::black_box(&mut copy2);
             if LoopCore::block_due(core) {
-                while let Some(r) = r_rx.dequeue() {
+                while let Some(r) = link.receive() {
                     LoopCore::deliver(core, &r);
                 }
-                if LoopCore::close_block(core, |b| h_tx.enqueue(b).is_ok()) == Some(true) {
+                if LoopCore::close_block(core, |b| link.send(b)) == Some(true) {
                     let t3 = systick_now();
                     loop_body::run_blocks(
                         core::hint::black_box(&mut task),
-                        &mut h_rx,
-                        &mut s_rx,
+                        &mut b_rx,
+                        &mut f_tx,
                         &mut r_tx,
                     );
                     est = est.wrapping_add(t3.wrapping_sub(systick_now()) & 0x00FF_FFFF);
                     blocks += 1;
                 }
             }
-            let mut sink = |x: Sample| {
-                let _ = s_tx.enqueue(x);
-            };
-            let o = LoopCore::step(core, core::hint::black_box(d), &mut sink);
+            let o = LoopCore::step(core, core::hint::black_box(d), &mut link);
             core::hint::black_box((o.u_code, o.x_code, o.y_code, o.status));
         }
         let step = t0.wrapping_sub(t1) & 0x00FF_FFFF;

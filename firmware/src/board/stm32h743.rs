@@ -328,7 +328,7 @@ impl loop_body::XyOutput for H7Xy {
     }
 }
 
-pub type Loop = LoopState<H7Adc, H7U, H7Xy, ActiveCore, QueueLink>;
+pub type Loop = LoopState<H7Adc, H7U, H7Xy, ActiveCore, QueueLink<'static, 'static>>;
 
 // ---------------------------------------------------------------- loop interrupt (TIM2)
 
@@ -510,7 +510,7 @@ pub fn make_loop(
     _b: &mut Board,
     adc_scale: Scale,
     core: ActiveCore,
-    link: QueueLink,
+    link: QueueLink<'static, 'static>,
     tel: Producer<'static, Item>,
     cmds: &'static CommandSlot,
     counters: &'static Counters,
