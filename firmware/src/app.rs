@@ -13,8 +13,8 @@ use crate::board;
 use core::cell::UnsafeCell;
 use core::sync::atomic::Ordering;
 use heapless::spsc::{Consumer, Queue};
-use visco_firmware::core_glue::{self, CoreCommand, LoopCore, StagedConfig};
 use visco_firmware::core_glue::BlockResult;
+use visco_firmware::core_glue::{self, CoreCommand, LoopCore, StagedConfig};
 use visco_firmware::loop_body::{
     BlockBuf, CommandSlot, Counters, EstimatorState, Item, QueueLink, SampleBlock, BLOCK_BUFFERS,
     BUFFER_SLOTS, ESTIMATOR_DEPTH, TELEMETRY_DEPTH,

@@ -129,6 +129,10 @@ fn clean_tap_names_nothing() {
     );
     let rms = num(&j, "rms_before_m");
     assert!(rms < 1.2 * sc.noise_m, "{rms} vs noise {}", sc.noise_m);
+    assert_eq!(
+        j.get("verdict").and_then(|v| v.as_str()),
+        Some("the nominal model explains the recording to within its noise")
+    );
     assert!(text(&o.stdout).contains("explains the recording to within its noise"));
 }
 

@@ -5,11 +5,11 @@
 //! restarts, both estimators. Every block's result must be the same bit for bit, in f32 and
 //! Q31.32, so that the firmware's blocks give the host's results.
 
+use visco_core::excitation::SineTable;
 use visco_core::fixed::Q32;
 use visco_core::schedule::{
     Block, EstimatorTask, Sample, Target, SAMPLE_EST, SAMPLE_HP, SAMPLE_HP_REST,
 };
-use visco_core::excitation::SineTable;
 use visco_core::{Config, Controller};
 
 /// A small deterministic generator (no test dependency needed for a few thousand numbers).
@@ -38,7 +38,11 @@ fn check<T: SineTable>(name: &str) {
     let mut k = 0u32;
     for block in 0..3000u32 {
         let target = targets[(block / 50) as usize % targets.len()];
-        let skip = if rng.next() % 4 == 0 { rng.next() % 12 } else { 0 };
+        let skip = if rng.next() % 4 == 0 {
+            rng.next() % 12
+        } else {
+            0
+        };
         let own = 1 + rng.next() % 40;
         // Z and U in nm around a tip 450 nm in, with tones and noise, so that the filters'
         // outputs and the sums differ from block to block.

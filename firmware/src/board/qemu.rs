@@ -28,8 +28,7 @@ use visco_firmware::core_glue::{
 use visco_firmware::drivers::ad4000::{self, part, Ad4000, CFG_TURBO};
 use visco_firmware::drivers::ad5541::Ad5541;
 use visco_firmware::loop_body::{
-    self, BlockBuf, CommandSlot, Counters, EstimatorLink, Item, LoopState, QueueLink,
-    SampleBlock,
+    self, BlockBuf, CommandSlot, Counters, EstimatorLink, Item, LoopState, QueueLink, SampleBlock,
 };
 use visco_firmware::scale::Scale;
 use visco_firmware::spi_device::CsDevice;

@@ -24,6 +24,21 @@ pub struct DiagnoseReport {
     pub rms_before_m: Num,
     /// Held-out RMS of recorded − simulated D with the extended model (m).
     pub rms_after_m: Num,
+    /// Held-out RMS of recorded − simulated D with the extended model over the same where the
+    /// tip is far out of contact (the farther half of the free held-out samples): about one, or
+    /// less (contact stiffens the lever against its thermal noise), where the model fits the
+    /// contact as well as the free lever; 1 where too few samples are free to tell.
+    pub contact_misfit: Num,
+    /// Held-out RMS of recorded − simulated D with the extended model over the noise: the
+    /// sample-to-sample scatter (robust σ of the first difference over √2) and, for a dynamic
+    /// model, the free lever's thermal noise √(k_B·T/K) at 300 K (which the scatter of a
+    /// resonant lever's samples does not see), in quadrature. About one, or less, for a model
+    /// that leaves only noise.
+    pub misfit_over_noise: Num,
+    /// The outcome in words: the effects left out, and "explains … to within its noise" only
+    /// where `misfit_over_noise` ≤ 1.5; above, whether the misfit sits where the tip touches
+    /// (`contact_misfit` > 1.5) or everywhere.
+    pub verdict: String,
     /// The effects found, most important first; empty when the nominal model explains the
     /// recording to within its noise.
     pub left_out: Vec<LeftOut>,

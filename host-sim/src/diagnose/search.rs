@@ -108,6 +108,10 @@ const LATTICE_PITCH_DIVISORS: [f64; 5] = [2.0, 3.0, 4.0, 5.0, 6.0];
 /// 100 000-sample simulation is tens of ms).
 const LATTICE_POLISHED: usize = 2;
 const LATTICE_POLISH_ITERATIONS: usize = 12;
+/// The [`contact_misfit`] up to which a model fits the contact to its noise: the bar a nominal
+/// fit is held to (1.5× the noise). Above it (on the fit samples), the bed search polishes
+/// every screened lattice; and with nothing named the report says a misfit remains.
+pub const WITHIN_NOISE: f64 = 1.5;
 /// The tip axis's offsets tried in the lattice cell: the corners and midpoints of the
 /// irreducible triangle 0 ≤ y ≤ x ≤ ½ of the square lattice's symmetry.
 const LATTICE_OFFSETS: [[f64; 2]; 6] = [
@@ -468,6 +472,14 @@ impl Problem {
         } else {
             ((a / n as f64).sqrt(), (b / n as f64).sqrt())
         }
+    }
+
+    /// [`contact_misfit`] of model `m` on the fit samples.
+    pub fn contact_misfit(&self, m: &Model, env: &Env) -> f64 {
+        let mut tr = Trace::default();
+        let sim = self.simulate(m, env, Some(&mut tr));
+        let r: Vec<f64> = self.data.d.iter().zip(&sim).map(|(a, b)| a - b).collect();
+        contact_misfit(&r, &tr.depth, &self.fit)
     }
 
     /// RMS of `resid` over the fit samples where model `m` has the tip out of contact (over
@@ -857,10 +869,7 @@ impl Problem {
     /// [`MISFIT_DOMINATED`] times the sample-to-sample scatter (robust σ of the first
     /// difference over √2, which the slow misfit of a model hardly reaches).
     pub fn misfit_dominated(&self, r: &[f64]) -> bool {
-        let diffs: Vec<f64> = r.windows(2).map(|w| w[1] - w[0]).collect();
-        let scatter = crate::identify::signal::robust_sigma(&diffs) / std::f64::consts::SQRT_2;
-        let rms = (r.iter().map(|x| x * x).sum::<f64>() / r.len().max(1) as f64).sqrt();
-        rms > MISFIT_DOMINATED * scatter
+        misfit_ratio(r) > MISFIT_DOMINATED
     }
 
     /// The held-out test of `ext` against `base` (residuals over every sample): whitened
@@ -950,15 +959,16 @@ impl Problem {
     /// square lattice's symmetry), each polished briefly from the continuum's optimum; the
     /// best two are polished with their offsets refined. It replaces the continuum when its
     /// SSR is lower by more than BIC's ln(n)·σ² per added parameter (pitch and two offsets).
-    /// Returns the simulations spent.
+    /// Returns the simulations spent, and the bed the usual search chose where the deeper one
+    /// (below) replaced it.
     pub(crate) fn choose_bed(
         &self,
         best: &mut (f64, Model),
         env: &Env,
         progress: &mut impl FnMut(&str),
-    ) -> usize {
+    ) -> (usize, Option<Model>) {
         if best.1.nominal.contacts.iter().all(|c| !(c.k_a > 0.0)) {
-            return 0;
+            return (0, None);
         }
         let r = self.inst.r_tip;
         let mut evaluations = 0;
@@ -995,25 +1005,69 @@ impl Problem {
         trials.sort_by(|a, b| a.0.total_cmp(&b.0));
         // The best two, each polished with its offset refined: the screen's order is only
         // approximate where pitches give similar forces.
+        let rest = trials.split_off(LATTICE_POLISHED.min(trials.len()));
         let mut polished: Option<(f64, Model)> = None;
-        for (_, mut m) in trials.into_iter().take(LATTICE_POLISHED) {
+        let mut polish = |m: Model, polished: &mut Option<(f64, Model)>| {
+            let mut m = m;
             let (s, ev) = self.polish(&mut m, env, LATTICE_POLISH_ITERATIONS);
             evaluations += ev;
             if s.is_finite() && polished.as_ref().is_none_or(|p| s < p.0) {
-                polished = Some((s, m));
+                *polished = Some((s, m));
             }
+        };
+        for (_, m) in trials {
+            polish(m, &mut polished);
         }
-        let Some((s, m)) = polished else {
-            return evaluations;
+        // The screen holds the calibrations and the initial state at the continuum's optimum,
+        // and over a lattice's offset the fit is rough (each element's engagement depth
+        // moves with it): the right lattice can screen worse than the continuum and be found
+        // only by its full polish (refsim's clean s15, a 100 nm bed: screened last of its
+        // pitch, polished to 1.0× the noise, against 2.7× for the best screened). So where the
+        // best fit so far still misfits the fit samples clearly against the samples out of
+        // contact, every screened lattice is polished: the cost falls on recordings that need
+        // it (and the contact's misfit is measured against the free lever's, so that a lever's
+        // coloured thermal noise does not read as misfit).
+        let best_ratio = {
+            let m = match &polished {
+                Some((s, m)) if *s < best.0 => m,
+                _ => &best.1,
+            };
+            self.contact_misfit(m, env)
         };
         let sigma = env.noise_m / LENGTH;
         let n_fit = self.fit.iter().filter(|&&f| f).count().max(2) as f64;
         let threshold = 3.0 * n_fit.ln() * sigma * sigma;
-        if s.is_finite() && s < best.0 - threshold {
+        let replaces = |s: f64| s.is_finite() && s < best.0 - threshold;
+        // What the usual search chose, should the deeper one replace it: a misfit from an
+        // effect also makes the search go deeper, and a lattice found there can stand in for
+        // part of the effect (refsim's adhesion s3, a force curve: a 150 nm lattice, 1 % lower
+        // held-out RMS, left the adhesion no test to pass). It stays a start of the first
+        // stage, as the continuum does.
+        let mut usual = polished.clone().filter(|(s, _)| replaces(*s));
+        if best_ratio > WITHIN_NOISE && !rest.is_empty() {
+            progress(&format!(
+                "bed: the best fit misfits ({best_ratio:.1}× its RMS far out of contact): \
+                 every screened lattice polished"
+            ));
+            for (_, m) in rest {
+                polish(m, &mut polished);
+            }
+        } else {
+            usual = None;
+        }
+        // The simulation of the misfit's measure.
+        evaluations += 1;
+        let Some((s, m)) = polished else {
+            return (evaluations, None);
+        };
+        if replaces(s) {
             progress(&format!("bed: {}", m.nominal.bed.describe()));
             *best = (s, m);
         }
-        evaluations
+        let displaced = usual
+            .filter(|(_, u)| u.nominal.bed != best.1.nominal.bed)
+            .map(|(_, u)| u);
+        (evaluations, displaced)
     }
 
     /// Nominal fit, then forward selection (module docs). `progress` is told each step.
@@ -1100,8 +1154,11 @@ impl Problem {
         // damping and stiffness under the tones, its signature. On a quasi-static curve a
         // coarse lattice is only a slightly different force law, which stood in for part of
         // a plastic set on a real JPK cell curve (a continuum).
+        let mut displaced_bed = None;
         if self.inst.dynamic() {
-            evaluations += self.choose_bed(&mut input_fits[0], &env0, &mut progress);
+            let (ev, displaced) = self.choose_bed(&mut input_fits[0], &env0, &mut progress);
+            evaluations += ev;
+            displaced_bed = displaced;
         }
         let input = input_fits[0].1.nominal.input;
         let mut starts: Vec<(f64, Model)> = vec![input_fits[0].clone()];
@@ -1144,6 +1201,12 @@ impl Problem {
         // competes with the lattice nominal in the held-out test.
         if input_fits[0].1.nominal.bed != Bed::Continuum {
             starts.push(continuum);
+        }
+        if let Some(m) = displaced_bed {
+            let r = self
+                .fit_residual(&m, &env0)
+                .map_or(f64::INFINITY, |r| ssr(&r));
+            starts.push((r, m));
         }
         // The scales every effect is built with are frozen here, from the fitted nominal
         // model, so that an effect means the same at every stage; the nominal fit is
@@ -1372,6 +1435,48 @@ impl Problem {
 /// shape grids are geometric there) for `iterations` reductions of the bracket,
 /// `iterations + 1` evaluations; `f` is told every point it is evaluated at (callers keep the
 /// best, with what its evaluation computed).
+/// A residual's RMS over the samples of `mask` over its RMS where the tip is far out of
+/// contact (the farther half of the masked samples with depth < 0), where neither the bed nor
+/// the touch plays a part: about one, or less (contact stiffens the lever against its thermal
+/// noise, which a sample-to-sample scatter would not see), where the model fits the contact as
+/// well as the free lever; one where fewer than 32 samples are far out of contact to tell.
+pub fn contact_misfit(resid: &[f64], depth: &[f64], mask: &[bool]) -> f64 {
+    let mut all = (0.0, 0usize);
+    let mut free: Vec<(f64, f64)> = Vec::new();
+    for ((&r, &d), _) in resid
+        .iter()
+        .zip(depth)
+        .zip(mask)
+        .filter(|((r, _), m)| **m && r.is_finite())
+    {
+        all = (all.0 + r * r, all.1 + 1);
+        if d < 0.0 {
+            free.push((d, r));
+        }
+    }
+    free.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let far = &free[..free.len() / 2];
+    if far.len() < 32 || all.1 == 0 {
+        return 1.0;
+    }
+    let far_ms = far.iter().map(|(_, r)| r * r).sum::<f64>() / far.len() as f64;
+    if far_ms > 0.0 {
+        (all.0 / all.1 as f64 / far_ms).sqrt()
+    } else {
+        1.0
+    }
+}
+
+/// A residual's RMS over its sample-to-sample scatter (robust σ of the first difference over
+/// √2, which the slow misfit of a model hardly reaches): about one where a model explains the
+/// samples to their white noise, more where it leaves a systematic misfit.
+pub fn misfit_ratio(r: &[f64]) -> f64 {
+    let diffs: Vec<f64> = r.windows(2).map(|w| w[1] - w[0]).collect();
+    let scatter = crate::identify::signal::robust_sigma(&diffs) / std::f64::consts::SQRT_2;
+    let rms = (r.iter().map(|x| x * x).sum::<f64>() / r.len().max(1) as f64).sqrt();
+    rms / scatter.max(1e-300)
+}
+
 fn golden_probe(lo: f64, hi: f64, iterations: usize, mut f: impl FnMut(f64) -> f64) {
     if !(hi > lo) {
         return;
@@ -1395,4 +1500,85 @@ pub fn c_a_si(c_a: f64) -> f64 {
 /// µs → s.
 pub fn seconds(t_us: f64) -> f64 {
     t_us * TIME
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{contact_misfit, misfit_ratio};
+    use crate::plant::rng::NormalRng;
+
+    /// White noise reads one; a slow misfit of amplitude A on noise σ reads
+    /// √(σ² + A²/2)/σ, because the first difference hardly sees it.
+    #[test]
+    fn misfit_ratio_reads_white_noise_as_one_and_slow_misfit_above() {
+        let mut rng = NormalRng::new(5);
+        let n = 20_000;
+        let sigma = 0.2;
+        let noise: Vec<f64> = (0..n).map(|_| sigma * rng.normal()).collect();
+        let white = misfit_ratio(&noise);
+        // The robust σ of n differences is good to ~1.2/√n relative; 4 of those.
+        let tol = 4.0 * 1.2 / (n as f64).sqrt();
+        assert!((white - 1.0).abs() < tol, "white noise: {white}");
+        let a = 2.0 * sigma;
+        let slow: Vec<f64> = noise
+            .iter()
+            .enumerate()
+            .map(|(i, e)| e + a * (2.0 * std::f64::consts::PI * i as f64 / 2000.0).sin())
+            .collect();
+        let want = (sigma * sigma + a * a / 2.0).sqrt() / sigma;
+        let got = misfit_ratio(&slow);
+        // The sine's own differences (2πA/2000 per sample) widen the scatter by < 0.1 %.
+        assert!(
+            (got - want).abs() < tol * want,
+            "slow misfit: {got} vs {want}"
+        );
+        assert!(got > 1.4, "{got}");
+    }
+
+    /// Noise alike in and out of contact reads one; a misfit of RMS A in contact (half the
+    /// samples) on noise σ reads √(σ² + A²/2)/σ; too few free samples read one.
+    #[test]
+    fn contact_misfit_compares_the_contact_with_the_free_lever() {
+        let mut rng = NormalRng::new(7);
+        let n = 20_000;
+        let sigma = 0.1;
+        let depth: Vec<f64> = (0..n)
+            .map(|i| {
+                if i < n / 2 {
+                    -50.0 + 0.001 * i as f64
+                } else {
+                    5.0
+                }
+            })
+            .collect();
+        let mask = vec![true; n];
+        let noise: Vec<f64> = (0..n).map(|_| sigma * rng.normal()).collect();
+        let clean = contact_misfit(&noise, &depth, &mask);
+        // The far-free half is n/4 samples: its mean square is good to √(2/(n/4)).
+        let tol = 4.0 * (2.0 / (n as f64 / 4.0)).sqrt();
+        assert!((clean - 1.0).abs() < tol, "clean: {clean}");
+        let a = 3.0 * sigma;
+        let touched: Vec<f64> = noise
+            .iter()
+            .zip(&depth)
+            .enumerate()
+            .map(|(i, (e, &d))| {
+                // A slow misfit of RMS A where the tip touches.
+                let slow = a * std::f64::consts::SQRT_2 * (0.01 * i as f64).sin();
+                if d > 0.0 {
+                    e + slow
+                } else {
+                    *e
+                }
+            })
+            .collect();
+        let want = (sigma * sigma + a * a / 2.0).sqrt() / sigma;
+        let got = contact_misfit(&touched, &depth, &mask);
+        assert!((got - want).abs() < tol * want, "touched: {got} vs {want}");
+        assert!(got > super::WITHIN_NOISE);
+        // Only the masked samples count: with the free ones masked out there is nothing to
+        // compare with.
+        let contact_only: Vec<bool> = depth.iter().map(|&d| d > 0.0).collect();
+        assert_eq!(contact_misfit(&touched, &depth, &contact_only), 1.0);
+    }
 }
