@@ -27,7 +27,8 @@ pub struct DiagnoseReport {
     /// Held-out RMS of recorded − simulated D with the extended model over the same where the
     /// tip is far out of contact (the farther half of the free held-out samples): about one, or
     /// less (contact stiffens the lever against its thermal noise), where the model fits the
-    /// contact as well as the free lever; 1 where too few samples are free to tell.
+    /// contact as well as the free lever; null where too few samples are far out of contact to
+    /// tell.
     pub contact_misfit: Num,
     /// Held-out RMS of recorded − simulated D with the extended model over the noise: the
     /// sample-to-sample scatter (robust σ of the first difference over √2) and, for a dynamic

@@ -535,6 +535,11 @@ impl Diagnosis {
             } else {
                 format!("{left}; the extended model explains it to within its noise")
             }
+        } else if touch.is_nan() {
+            format!(
+                "{left}; yet the held-out RMS is {noise:.2}× the noise: a misfit remains (too few \
+                 samples far out of contact to say whether it sits where the tip touches)"
+            )
         } else if touch > WITHIN_NOISE {
             format!(
                 "{left}; yet the held-out RMS is {touch:.2}× its RMS far out of contact: a misfit \

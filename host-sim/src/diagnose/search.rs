@@ -1439,7 +1439,7 @@ impl Problem {
 /// contact (the farther half of the masked samples with depth < 0), where neither the bed nor
 /// the touch plays a part: about one, or less (contact stiffens the lever against its thermal
 /// noise, which a sample-to-sample scatter would not see), where the model fits the contact as
-/// well as the free lever; one where fewer than 32 samples are far out of contact to tell.
+/// well as the free lever; NaN where fewer than 32 samples are far out of contact to tell.
 pub fn contact_misfit(resid: &[f64], depth: &[f64], mask: &[bool]) -> f64 {
     let mut all = (0.0, 0usize);
     let mut free: Vec<(f64, f64)> = Vec::new();
@@ -1457,13 +1457,13 @@ pub fn contact_misfit(resid: &[f64], depth: &[f64], mask: &[bool]) -> f64 {
     free.sort_by(|a, b| a.0.total_cmp(&b.0));
     let far = &free[..free.len() / 2];
     if far.len() < 32 || all.1 == 0 {
-        return 1.0;
+        return f64::NAN;
     }
     let far_ms = far.iter().map(|(_, r)| r * r).sum::<f64>() / far.len() as f64;
     if far_ms > 0.0 {
         (all.0 / all.1 as f64 / far_ms).sqrt()
     } else {
-        1.0
+        f64::NAN
     }
 }
 
@@ -1536,7 +1536,7 @@ mod tests {
     }
 
     /// Noise alike in and out of contact reads one; a misfit of RMS A in contact (half the
-    /// samples) on noise σ reads √(σ² + A²/2)/σ; too few free samples read one.
+    /// samples) on noise σ reads √(σ² + A²/2)/σ; too few free samples read NaN.
     #[test]
     fn contact_misfit_compares_the_contact_with_the_free_lever() {
         let mut rng = NormalRng::new(7);
@@ -1579,6 +1579,6 @@ mod tests {
         // Only the masked samples count: with the free ones masked out there is nothing to
         // compare with.
         let contact_only: Vec<bool> = depth.iter().map(|&d| d > 0.0).collect();
-        assert_eq!(contact_misfit(&touched, &depth, &contact_only), 1.0);
+        assert!(contact_misfit(&touched, &depth, &contact_only).is_nan());
     }
 }
