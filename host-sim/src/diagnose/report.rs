@@ -253,10 +253,10 @@ pub fn analyse(
         .filter(|(_, h)| **h)
         .map(|(x, _)| *x)
         .collect();
-    // misfit_ratio = RMS / scatter; the thermal term joins the scatter in quadrature.
+    // The thermal term joins the scatter in quadrature.
     let rms_fin =
         (held_fin.iter().map(|x| x * x).sum::<f64>() / held_fin.len().max(1) as f64).sqrt();
-    let scatter = rms_fin / super::search::misfit_ratio(&held_fin);
+    let scatter = super::search::sample_scatter(&held_fin);
     let thermal_nm2 = if p.inst.dynamic() && p.inst.k > 0.0 {
         // k_B·T/K in nm² (K in N/m = nN/nm).
         crate::plant::BOLTZMANN_J_PER_K * ROOM_TEMPERATURE_K / p.inst.k * 1e18

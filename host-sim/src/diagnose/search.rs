@@ -1089,9 +1089,7 @@ impl Problem {
             evaluations += ev;
             let r = self.residual(&m, &env0);
             if self.misfit_dominated(&r) {
-                let diffs: Vec<f64> = r.windows(2).map(|w| w[1] - w[0]).collect();
-                let scatter =
-                    crate::identify::signal::robust_sigma(&diffs) / std::f64::consts::SQRT_2;
+                let scatter = sample_scatter(&r);
                 let robust = Problem {
                     huber_nm: Some(3.0 * scatter.max(1e-6)),
                     ..self.clone()
@@ -1467,12 +1465,18 @@ pub fn contact_misfit(resid: &[f64], depth: &[f64], mask: &[bool]) -> f64 {
     }
 }
 
+/// A residual's sample-to-sample scatter: the robust σ of its first difference over √2 (white
+/// noise's σ; the slow misfit of a model hardly reaches it).
+pub fn sample_scatter(r: &[f64]) -> f64 {
+    let diffs: Vec<f64> = r.windows(2).map(|w| w[1] - w[0]).collect();
+    crate::identify::signal::robust_sigma(&diffs) / std::f64::consts::SQRT_2
+}
+
 /// A residual's RMS over its sample-to-sample scatter (robust σ of the first difference over
 /// √2, which the slow misfit of a model hardly reaches): about one where a model explains the
 /// samples to their white noise, more where it leaves a systematic misfit.
 pub fn misfit_ratio(r: &[f64]) -> f64 {
-    let diffs: Vec<f64> = r.windows(2).map(|w| w[1] - w[0]).collect();
-    let scatter = crate::identify::signal::robust_sigma(&diffs) / std::f64::consts::SQRT_2;
+    let scatter = sample_scatter(r);
     let rms = (r.iter().map(|x| x * x).sum::<f64>() / r.len().max(1) as f64).sqrt();
     rms / scatter.max(1e-300)
 }
