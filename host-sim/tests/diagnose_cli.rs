@@ -134,6 +134,15 @@ fn clean_tap_names_nothing() {
         Some("the nominal model explains the recording to within its noise")
     );
     assert!(text(&o.stdout).contains("explains the recording to within its noise"));
+    // The located tests may see misfits far below the noise on 10⁴ samples; none is material
+    // (half the noise RMS) on a clean tap, and each says how large it is.
+    let tests = j["locate"]["tests"].as_array().expect("locate.tests");
+    assert!(tests.len() > 10, "{} tests", tests.len());
+    for t in tests {
+        let size = t["size_over_noise"].as_f64().expect("a finite size");
+        assert!(size >= 0.0, "{t}");
+        assert_eq!(t["material"], serde_json::Value::Bool(false), "{t}");
+    }
 }
 
 /// One error line naming the file, exit status 1, nothing written.

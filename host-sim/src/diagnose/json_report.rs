@@ -255,6 +255,12 @@ pub struct TestJson {
     /// Holm-adjusted p-value.
     pub p_adjusted: Num,
     pub significant: bool,
+    /// The misfit the test attributes, as an RMS over the noise RMS (an offset's size, a
+    /// line's RMS, the excess variance's square root, the explained share of the variance's
+    /// square root for the correlation tests).
+    pub size_over_noise: Num,
+    /// Significant, and `size_over_noise` at least 0.5: a misfit that matters.
+    pub material: bool,
     pub detail: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub t_start_s: Option<f64>,

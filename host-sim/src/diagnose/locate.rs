@@ -12,9 +12,16 @@
 //! | state | a mean offset in each quarter of the contact depth, and loading against unloading | z |
 //! | frequency | power at the excitation tones, their harmonics and intermodulation, f₀, and the strongest line between 4 and 9 f₀ | periodogram / local floor, χ²(2·segments) |
 //! | whiteness | Ljung–Box on the whitened residual, 20 lags | χ²(20) |
-//! | input | cross-correlation of the whitened residual with the input's increments, lags 0–20 | χ²(21) |
+//! | input | the whitened residual regressed on the input's increments, lags 0–20 | explained sum of squares, χ²(rank) |
 //! | time | CUSUM of the whitened residual | sup of a Brownian motion, `P ≤ 4·Φ̄(c)` |
 //! | map | excess variance per tap (recordings of several taps with X, Y) | χ², n dof |
+//!
+//! A test is *significant* at the family's level; it is *material* when it is significant and
+//! the misfit it attributes is at least [`MATERIAL`] (half the noise RMS). Each test's size:
+//! an offset's |mean|, the excess variance's √(χ²/n − 1), a line's RMS, the share of the
+//! variance the correlation tests explain (√), the CUSUM's mean up to its excursion, all
+//! over the noise σ. A line at f₀ is material only beyond the free lever's thermal variance
+//! k_B·T/K at 300 K, which its Brownian motion puts there on a clean recording.
 //!
 //! Phases come from the fitted nominal model (in contact or not) and the slow motion of the
 //! base (U smoothed over the excitation): `approach` (moving towards the sample, free),
@@ -27,6 +34,7 @@ use super::noise::{chi2_sf, normal_sf, NoiseModel};
 use super::problem::Problem;
 use super::spectrum::Spectrum;
 use crate::identify::signal::moving_average;
+use nalgebra::{DMatrix, DVector};
 use visco_core::units::{FORCE, LENGTH, TIME};
 
 /// What the instrument is doing at a sample.
@@ -227,6 +235,10 @@ pub struct Test {
     /// Holm-adjusted p-value.
     pub p_adjusted: f64,
     pub significant: bool,
+    /// The misfit the test attributes, as an RMS over the noise's (see [`MATERIAL`]).
+    pub size: f64,
+    /// Significant and at least [`MATERIAL`] in size.
+    pub material: bool,
     /// What it measured, in words and numbers.
     pub detail: String,
     /// Where (when it is a place).
@@ -246,6 +258,8 @@ impl Test {
             p_value: self.p_value.into(),
             p_adjusted: self.p_adjusted.into(),
             significant: self.significant,
+            size_over_noise: self.size.into(),
+            material: self.material,
             detail: self.detail.clone(),
             t_start_s: self.span.map(|(a, _)| a),
             t_end_s: self.span.map(|(_, b)| b),
@@ -285,6 +299,7 @@ pub fn locate(
     r_nom: &[f64],
     r_fin: &[f64],
     noise: &NoiseModel,
+    thermal_nm2: f64,
     alpha: f64,
 ) -> Located {
     let n = r_nom.len();
@@ -316,6 +331,8 @@ pub fn locate(
             p_value: (2.0 * normal_sf(z.abs())).min(1.0),
             p_adjusted: f64::NAN,
             significant: false,
+            size: (s / m).abs() / sigma,
+            material: false,
             detail: format!(
                 "{} held-out samples; nominal misfit {:.3e} m RMS",
                 idx.len(),
@@ -332,6 +349,8 @@ pub fn locate(
             p_value: chi2_sf(chi, m),
             p_adjusted: f64::NAN,
             significant: false,
+            size: (chi / m - 1.0).max(0.0).sqrt(),
+            material: false,
             detail: format!(
                 "{:.2}× the noise model's variance over {} samples",
                 chi / m,
@@ -368,6 +387,8 @@ pub fn locate(
                 p_value: (2.0 * normal_sf(z.abs())).min(1.0),
                 p_adjusted: f64::NAN,
                 significant: false,
+                size: (s / m).abs() / sigma,
+                material: false,
                 detail: format!(
                     "depth {:.3e}–{:.3e} m: misfit {:.3e} m RMS",
                     lo * LENGTH,
@@ -397,6 +418,9 @@ pub fn locate(
                 p_value: (2.0 * normal_sf(z.abs())).min(1.0),
                 p_adjusted: f64::NAN,
                 significant: false,
+                // +a loading and −a unloading differ by 2a.
+                size: 0.5 * (ml - mu).abs() / sigma,
+                material: false,
                 detail: format!(
                     "loading misfit {:.3e} m RMS over {} samples, unloading {:.3e} m RMS over {}",
                     rms_at(r_nom, &load) * LENGTH,
@@ -441,7 +465,9 @@ pub fn locate(
         lines.push(("intermodulation f1 + f2".into(), tones[0] + tones[1]));
         lines.push(("intermodulation f2 − f1".into(), tones[1] - tones[0]));
     }
+    let mut f0_line = None;
     if let Some(f0) = p.inst.f0_mhz().map(|f| f / TIME) {
+        f0_line = Some(lines.len());
         lines.push((format!("first resonance f0 ({f0:.4e} Hz)"), f0));
         if let Some((f2, _)) = spec_b
             .transient_peaks(4.0 * f0, (9.0 * f0).min(0.48 * fs), 1)
@@ -454,7 +480,8 @@ pub fn locate(
         }
     }
     let dof = 2.0 * spec_b.segments.max(1) as f64;
-    for (name, f) in lines {
+    for (j, (name, f)) in lines.into_iter().enumerate() {
+        let at_f0 = f0_line == Some(j);
         if !(f > 0.0 && f < 0.5 * fs) {
             continue;
         }
@@ -472,6 +499,17 @@ pub fn locate(
             p_value: chi2_sf(ratio * dof, dof),
             p_adjusted: f64::NAN,
             significant: false,
+            // At f₀ the lever's own Brownian motion makes a line of up to k_B·T/K: only power
+            // beyond it is a misfit.
+            size: line_size(
+                &spec_b,
+                k,
+                floor,
+                fs,
+                noise.raw_sigma,
+                if at_f0 { thermal_nm2 } else { 0.0 },
+            ),
+            material: false,
             detail: format!(
                 "{:.3e} m²/Hz at {:.4e} Hz against a floor of {:.3e} m²/Hz",
                 spec_b.psd[k] * LENGTH * LENGTH,
@@ -502,7 +540,6 @@ pub fn locate(
     }
     let lags = 20usize;
     let (mut num, mut count) = (vec![0.0; lags + 1], vec![0usize; lags + 1]);
-    let (mut cross, mut ccount) = (vec![0.0; lags + 1], vec![0usize; lags + 1]);
     let mut total = 0usize;
     for &(a, b) in &runs {
         let a = a.max(p_ar);
@@ -514,10 +551,6 @@ pub fn locate(
             for i in a + lag..b {
                 num[lag] += e[i] * e[i - lag];
                 count[lag] += 1;
-            }
-            for i in a.max(lag)..b {
-                cross[lag] += e[i] * du[i - lag];
-                ccount[lag] += 1;
             }
         }
     }
@@ -538,30 +571,33 @@ pub fn locate(
             p_value: chi2_sf(q, lags as f64),
             p_adjusted: f64::NAN,
             significant: false,
+            size: (q / total as f64).sqrt(),
+            material: false,
             detail: "autocorrelation of the whitened held-out residual".to_string(),
             span: None,
             freq_hz: None,
         });
         if du_sd > 0.0 {
-            let mut q = 0.0;
-            for lag in 0..=lags {
-                if ccount[lag] > 0 {
-                    let r = cross[lag] / ccount[lag] as f64 / c0.sqrt();
-                    q += r * r * total as f64;
-                }
+            let (q, dof, rows) = input_regression(&e, &du, &runs, p_ar, lags, c0.sqrt());
+            if dof > 0 && rows > 4 * (lags + 1) {
+                tests.push(Test {
+                    group: "input",
+                    name: "regression on U increments, lags 0–20".to_string(),
+                    statistic: "explained sum of squares / variance",
+                    value: q,
+                    p_value: chi2_sf(q, dof as f64),
+                    p_adjusted: f64::NAN,
+                    significant: false,
+                    size: (q / rows as f64).sqrt(),
+                    material: false,
+                    detail: format!(
+                        "what of the input the residual still follows ({dof} independent \
+                         directions of the lagged increments, {rows} samples)"
+                    ),
+                    span: None,
+                    freq_hz: None,
+                });
             }
-            tests.push(Test {
-                group: "input",
-                name: "cross-correlation with U increments, lags 0–20".to_string(),
-                statistic: "Q",
-                value: q,
-                p_value: chi2_sf(q, (lags + 1) as f64),
-                p_adjusted: f64::NAN,
-                significant: false,
-                detail: "what of the input the residual still follows".to_string(),
-                span: None,
-                freq_hz: None,
-            });
         }
     }
     // Time: CUSUM over the held-out samples in order.
@@ -584,6 +620,9 @@ pub fn locate(
             p_value: (4.0 * normal_sf(c)).min(1.0),
             p_adjusted: f64::NAN,
             significant: false,
+            // `s` counts in σ: the mean offset from the start to the excursion.
+            size: best / (at + 1) as f64,
+            material: false,
             detail: format!("largest excursion at t = {:.6e} s", t_s(idx[at])),
             span: Some((t_s(idx[0]), t_s(idx[at]))),
             freq_hz: None,
@@ -609,6 +648,8 @@ pub fn locate(
                 p_value: chi2_sf(chi, idx.len() as f64),
                 p_adjusted: f64::NAN,
                 significant: false,
+                size: (chi / idx.len() as f64 - 1.0).max(0.0).sqrt(),
+                material: false,
                 detail: format!("misfit {:.3e} m RMS", rms_at(r_nom, &idx) * LENGTH),
                 span: Some((t_s(a), t_s(b - 1))),
                 freq_hz: None,
@@ -616,6 +657,9 @@ pub fn locate(
         }
     }
     holm(&mut tests, alpha);
+    for t in &mut tests {
+        t.material = t.significant && t.size >= MATERIAL;
+    }
     Located {
         tests,
         phases,
@@ -623,6 +667,79 @@ pub fn locate(
         spectrum_before: spec_b,
         spectrum_after: spec_a,
     }
+}
+
+/// The smallest misfit a located test reports as material: an RMS of half the noise's, the
+/// size the effects' detection floor ([`super::search::DETECTION_FLOOR`]) asks of an effect's
+/// peak. With 10⁴–10⁵ held-out samples the tests see far smaller misfits (a mean offset of
+/// 0.06 σ over a dwell is significant), which no plot of the residual would show and which
+/// a model of another simulator's integrator can leave on clean data; a test's p-value says
+/// that a misfit is there, its size whether it matters.
+pub const MATERIAL: f64 = 0.5;
+
+/// The RMS of a line at bin `k` of a Hann-windowed Welch spectrum, above its local `floor`,
+/// less the power `expected` of the noise there, over the noise RMS `sigma` (a sinusoid of
+/// amplitude A puts A²/2 into 1.5 bins: the Hann window's equivalent noise bandwidth).
+fn line_size(s: &Spectrum, k: usize, floor: f64, fs: f64, sigma: f64, expected: f64) -> f64 {
+    let bins = s.f_hz.len().saturating_sub(1).max(1) as f64;
+    let df = 0.5 * fs / bins;
+    let power = (s.psd[k] - floor).max(0.0) * 1.5 * df - expected;
+    power.max(0.0).sqrt() / sigma.max(1e-300)
+}
+
+/// The whitened residual `e` (scaled by `scale` to unit variance) regressed on the input's
+/// increments at lags 0..=`lags` over the held-out `runs`: the explained sum of squares, its
+/// degrees of freedom (the rank of the lagged increments) and the rows used. Under the null
+/// the residual is white and independent of the input, so the sum is χ² with that many
+/// degrees of freedom whatever the input's own correlation; the sum of squared
+/// cross-correlations it replaces is not (a force curve's increments are nearly constant, so
+/// its 21 lags are one direction counted 21 times, and a clean curve read as significant).
+fn input_regression(
+    e: &[f64],
+    du: &[f64],
+    runs: &[(usize, usize)],
+    p_ar: usize,
+    lags: usize,
+    scale: f64,
+) -> (f64, usize, usize) {
+    let k = lags + 1;
+    let mut g = DMatrix::<f64>::zeros(k, k);
+    let mut b = DVector::<f64>::zeros(k);
+    let mut rows = 0usize;
+    let mut x = vec![0.0; k];
+    for &(a, end) in runs {
+        for i in a.max(p_ar).max(lags)..end {
+            for (j, xj) in x.iter_mut().enumerate() {
+                *xj = du[i - j];
+            }
+            let y = e[i] / scale;
+            for r in 0..k {
+                b[r] += x[r] * y;
+                for c in r..k {
+                    g[(r, c)] += x[r] * x[c];
+                }
+            }
+            rows += 1;
+        }
+    }
+    for r in 0..k {
+        for c in 0..r {
+            g[(r, c)] = g[(c, r)];
+        }
+    }
+    // The projection onto the lagged increments' span, by a pseudo-inverse: a ramp's
+    // increments span only a few directions.
+    let eig = g.symmetric_eigen();
+    let top = eig.eigenvalues.iter().cloned().fold(0.0f64, f64::max);
+    let (mut q, mut dof) = (0.0, 0usize);
+    for (j, &l) in eig.eigenvalues.iter().enumerate() {
+        if l > top * 1e-9 && l > 0.0 {
+            let proj = eig.eigenvectors.column(j).dot(&b);
+            q += proj * proj / l;
+            dof += 1;
+        }
+    }
+    (q, dof, rows)
 }
 
 /// Holm's step-down adjustment at family-wise rate `alpha`.
@@ -650,6 +767,75 @@ fn rms_at(r: &[f64], idx: &[usize]) -> f64 {
 mod tests {
     use super::*;
 
+    /// On a force curve's input (increments constant on the approach, opposite on the
+    /// retract, zero in the dwell) a white residual independent of it must reach the 5 %
+    /// level in about 5 % of trials. The sum of squared cross-correlations the regression
+    /// replaced, read as χ²(21), counts the ramp's one direction 21 times and does not.
+    #[test]
+    fn input_regression_keeps_its_level_on_a_ramp() {
+        use crate::plant::rng::NormalRng;
+        let mut rng = NormalRng::new(17);
+        let n = 3000;
+        let du: Vec<f64> = (0..n)
+            .map(|i| match i * 3 / n {
+                0 => 1.0,
+                1 => 0.0,
+                _ => -1.0,
+            })
+            .collect();
+        let runs = [(0, n)];
+        let trials = 400;
+        let (mut hits, mut old_hits) = (0, 0);
+        for _ in 0..trials {
+            let e: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
+            let (q, dof, rows) = input_regression(&e, &du, &runs, 0, 20, 1.0);
+            assert_eq!(rows, n - 20);
+            if chi2_sf(q, dof as f64) < 0.05 {
+                hits += 1;
+            }
+            let old: f64 = (0..=20)
+                .map(|lag| {
+                    let r = (lag..n).map(|i| e[i] * du[i - lag]).sum::<f64>() / n as f64;
+                    r * r * n as f64
+                })
+                .sum();
+            if chi2_sf(old, 21.0) < 0.05 {
+                old_hits += 1;
+            }
+        }
+        // Binomial(400, 0.05): mean 20, σ 4.4; ±3σ.
+        assert!(
+            (7..=33).contains(&hits),
+            "{hits} of {trials} at the 5 % level"
+        );
+        // The old sum is ≈ 21·(2/3)·χ²(1) here (all lags alike, E du² = 2/3): 12.6 % above
+        // χ²(21)'s 5 % point, about 50 of 400.
+        assert!(
+            old_hits > 35,
+            "the cross-correlations' sum: {old_hits} of {trials}"
+        );
+    }
+
+    /// A residual that follows the input at lag 5 with a gain of 0.3 (unit-variance white
+    /// increments): the regression finds it, and its size is the explained share's root,
+    /// √(0.09/1.09) = 0.287.
+    #[test]
+    fn input_regression_sizes_what_the_residual_follows() {
+        use crate::plant::rng::NormalRng;
+        let mut rng = NormalRng::new(5);
+        let n = 20_000;
+        let du: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
+        let e: Vec<f64> = (0..n)
+            .map(|i| rng.normal() + if i >= 5 { 0.3 * du[i - 5] } else { 0.0 })
+            .collect();
+        let scale = (1.0f64 + 0.09).sqrt();
+        let (q, dof, rows) = input_regression(&e, &du, &[(0, n)], 0, 20, scale);
+        assert_eq!(dof, 21);
+        let size = (q / rows as f64).sqrt();
+        assert!((size - 0.287).abs() < 0.02, "size {size}");
+        assert!(chi2_sf(q, 21.0) < 1e-100);
+    }
+
     #[test]
     fn holm_adjusts_in_order() {
         let mk = |p: f64| Test {
@@ -660,6 +846,8 @@ mod tests {
             p_value: p,
             p_adjusted: f64::NAN,
             significant: false,
+            size: 0.0,
+            material: false,
             detail: String::new(),
             span: None,
             freq_hz: None,

@@ -133,6 +133,17 @@ pub struct Diagnosis {
 /// its own; 10 % either way moves the noise by 5 %.
 const ROOM_TEMPERATURE_K: f64 = 300.0;
 
+/// The free lever's thermal variance k_B·T/K at [`ROOM_TEMPERATURE_K`] (nm²), part of a
+/// dynamic model's noise that no fit removes; 0 for a static model.
+pub fn lever_thermal_nm2(p: &Problem) -> f64 {
+    if p.inst.dynamic() && p.inst.k > 0.0 {
+        // K in N/m = nN/nm.
+        crate::plant::BOLTZMANN_J_PER_K * ROOM_TEMPERATURE_K / p.inst.k * 1e18
+    } else {
+        0.0
+    }
+}
+
 /// Diagnoses a recording held in memory (no files).
 pub fn analyse(
     rec: &Recording,
@@ -172,6 +183,7 @@ pub fn analyse(
         &r_nom,
         &r_fin,
         &search.nominal_noise,
+        lever_thermal_nm2(&p),
         opts.alpha,
     );
     // Held-out RMS of a residual in nm, over the samples `idx` selects, in metres.
@@ -257,12 +269,7 @@ pub fn analyse(
     let rms_fin =
         (held_fin.iter().map(|x| x * x).sum::<f64>() / held_fin.len().max(1) as f64).sqrt();
     let scatter = super::search::sample_scatter(&held_fin);
-    let thermal_nm2 = if p.inst.dynamic() && p.inst.k > 0.0 {
-        // k_B·T/K in nm² (K in N/m = nN/nm).
-        crate::plant::BOLTZMANN_J_PER_K * ROOM_TEMPERATURE_K / p.inst.k * 1e18
-    } else {
-        0.0
-    };
+    let thermal_nm2 = lever_thermal_nm2(&p);
     let misfit_over_noise = rms_fin / (scatter * scatter + thermal_nm2).sqrt().max(1e-300);
     Ok(Diagnosis {
         rms_before_m: held_rms(&r_nom, &all),
