@@ -71,11 +71,7 @@ pub fn loop_interrupt() {
     }
     // SAFETY: called from the loop interrupt only.
     if let Some(l) = unsafe { LOOP.get() } {
-        if visco_firmware::loop_body::LOOP_BATCH == 1 {
-            l.on_sample();
-        } else {
-            l.on_batch::<{ visco_firmware::loop_body::LOOP_BATCH }>();
-        }
+        l.on_sample();
     }
 }
 

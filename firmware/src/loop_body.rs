@@ -22,38 +22,6 @@ pub trait Adc {
     /// The next sample as the core's `step` takes it (metres in f32, nm in fixed point), or
     /// `None` when there is none (counted as starved).
     fn sample(&mut self) -> Option<Number>;
-    /// Up to `out.len()` samples in order (a batch of the loop interrupt, [`LOOP_BATCH`]);
-    /// returns how many were written. Default: one sample.
-    #[inline(always)]
-    fn samples(&mut self, out: &mut [Number]) -> usize {
-        match (self.sample(), out.first_mut()) {
-            (Some(d), Some(o)) => {
-                *o = d;
-                1
-            }
-            _ => 0,
-        }
-    }
-}
-
-/// Samples per loop interrupt: the converters move this many per interrupt and the loop
-/// steps the core that many times in a row (stabilizer-style batches). Set at build time by
-/// `VISCO_LOOP_BATCH` (1 when unset; a measurement knob of issue 14 round 4).
-pub const LOOP_BATCH: usize = parse_batch(option_env!("VISCO_LOOP_BATCH"));
-
-const fn parse_batch(s: Option<&str>) -> usize {
-    let Some(s) = s else { return 1 };
-    let b = s.as_bytes();
-    let mut i = 0;
-    let mut v = 0usize;
-    while i < b.len() {
-        let c = b[i];
-        assert!(c.is_ascii_digit(), "VISCO_LOOP_BATCH: a number");
-        v = v * 10 + (c - b'0') as usize;
-        i += 1;
-    }
-    assert!(v >= 1 && v <= 64, "VISCO_LOOP_BATCH: 1 ..= 64");
-    v
 }
 
 /// The actuator output U (DAC driver).
@@ -465,46 +433,14 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
     /// One loop sample. Called from the loop interrupt only.
     #[inline(always)]
     pub fn on_sample(&mut self) {
+        let core = &mut self.core;
         if let Some(cmd) = self.commands.take() {
-            self.core.apply_command(cmd);
+            core.apply_command(cmd);
         }
         let Some(d) = self.adc.sample() else {
             bump(&self.counters.starved);
             return;
         };
-        self.step_one(d, 0);
-        bump(&self.counters.samples);
-    }
-
-    /// Up to `B` samples in one loop interrupt: the command, the ADC's batch and the sample
-    /// counter once, the core stepped once per sample. Called from the loop interrupt only.
-    #[inline(always)]
-    pub fn on_batch<const B: usize>(&mut self) {
-        if let Some(cmd) = self.commands.take() {
-            self.core.apply_command(cmd);
-        }
-        let mut d = [<Number as visco_core::Real>::ZERO; B];
-        let n = self.adc.samples(&mut d);
-        if n == 0 {
-            bump(&self.counters.starved);
-            return;
-        }
-        for (i, &x) in d.iter().take(n).enumerate() {
-            self.step_one(x, i as u32);
-        }
-        let c = &self.counters.samples;
-        c.store(
-            c.load(Ordering::Relaxed).wrapping_add(n as u32),
-            Ordering::Relaxed,
-        );
-    }
-
-    /// One sample's step: block close, core, DAC, lateral outputs, telemetry; `k` is the
-    /// sample's place in the interrupt's batch (the sample counter is added to once per
-    /// batch, after it).
-    #[inline(always)]
-    fn step_one(&mut self, d: Number, k: u32) {
-        let core = &mut self.core;
         if core.block_due() {
             if self.in_flight > 0 {
                 // The schedule: the last block's result is adopted now, before this step.
@@ -538,7 +474,7 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
         if self.per_sample {
             let estimates = self.core.estimate_array();
             let [u_m, x_m, y_m] = self.core.outputs_m(&out);
-            let index = self.index().wrapping_add(k);
+            let index = self.index();
             emit(
                 &mut self.telemetry,
                 self.counters,
@@ -556,11 +492,12 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
             );
         }
         if out.status & RECORD_READY != 0 {
-            let index = self.index().wrapping_add(k);
+            let index = self.index();
             if let Some(r) = self.core.take_record(index) {
                 emit(&mut self.telemetry, self.counters, Item::Record(r));
             }
         }
+        bump(&self.counters.samples);
     }
 
     /// The index of the sample being stepped (since the source was last set).

@@ -1081,7 +1081,7 @@ fn insns(b: &BenchFrame, ipt: f64) -> Result<(f64, Option<f64>)> {
 /// [`bench_window`]) rather than skewing it.
 fn bench_period_insns(img: &Image) -> f64 {
     match (img.machine == M3, img.number) {
-        (false, Number::F32) => 16_000.0,
+        (false, Number::F32) => 4_000.0,
         _ => 40_000.0,
     }
 }

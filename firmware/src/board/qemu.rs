@@ -298,53 +298,7 @@ pub struct QemuAdc {
     table_pos: usize,
 }
 
-impl QemuAdc {
-    /// The driver's read of one code put into the virtual conversion register.
-    #[inline(always)]
-    fn convert(&mut self, code: i32) -> Number {
-        let raw = ad4000::encode(code, 16, ad4000::Coding::StraightBinary);
-        self.dev.device_mut().bus_mut().conversion = raw << 16;
-        match self.dev.read_code() {
-            Ok(c) => self.scale.to_input(c),
-            Err(e) => match e {},
-        }
-    }
-}
-
 impl loop_body::Adc for QemuAdc {
-    /// A batch: the source chosen once, then each code through the driver. Replay (the feed)
-    /// stays one sample per interrupt: the main loop pends one interrupt per fed sample.
-    #[inline(always)]
-    fn samples(&mut self, out: &mut [Number]) -> usize {
-        match self.source {
-            AdcSource::Table => {
-                let i = self.table_pos;
-                let n = out.len().min(self.table_len.saturating_sub(i));
-                self.table_pos = i + n;
-                for (k, o) in out.iter_mut().take(n).enumerate() {
-                    // table_len ≤ TABLE_LEN: the mask changes nothing and needs no bounds test.
-                    let code = self.table[(i + k) & (TABLE_LEN - 1)] as i32;
-                    *o = self.convert(code);
-                }
-                n
-            }
-            AdcSource::Synthetic => {
-                for o in out.iter_mut() {
-                    self.phase = self.phase.wrapping_add(7);
-                    *o = self.convert((self.phase & 0x3FFF) as i32 - 8192);
-                }
-                out.len()
-            }
-            AdcSource::Feed => match (self.sample(), out.first_mut()) {
-                (Some(d), Some(o)) => {
-                    *o = d;
-                    1
-                }
-                _ => 0,
-            },
-        }
-    }
-
     #[inline(always)]
     fn sample(&mut self) -> Option<Number> {
         let code = match self.source {
