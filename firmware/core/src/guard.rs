@@ -295,9 +295,111 @@ pub struct FaultBits {
     pub spike: u32,
 }
 
+/// The DIVE force limit decided on the low-passed deflection alone: the highest `lp` at which
+/// `K·(d_free − lp) > force_max` in `T`'s arithmetic, so that the per-sample test
+/// `!(lp > threshold)` fires for exactly the same `lp` (NaN included) as the force it replaces
+/// — a comparison instead of a subtraction, a product and a comparison per sample.
+///
+/// Exact: the force is non-increasing in `lp` (a subtraction and a product by `K > 0`, each
+/// correctly rounded or rounded half away and saturated, are monotone), so the values at which it
+/// fires are all those up to one; that one is found by a search over the ranks of `T`'s values
+/// ([`Real::rank`]): outward from the real-number threshold in doubling steps until bracketed,
+/// then bisection (a few evaluations, at most ~130; once per tap, at the approach's start). `K`
+/// and `force_max` are validated positive and finite, so the force fires at `T::LOWEST` and not
+/// at `T::HIGHEST` (a NaN `d_free` fires everywhere: the threshold is then `T::HIGHEST`).
+pub fn force_limit_lp<T: Real>(k: T, d_free: T, force_max: T) -> T {
+    let fires = |lp: T| !(k * (d_free - lp) <= force_max);
+    let (lowest, highest) = (T::LOWEST.rank(), T::HIGHEST.rank());
+    let guess = d_free.to_f64() - force_max.to_f64() / k.to_f64();
+    let guess = if guess.is_finite() {
+        T::from_f64(guess).rank().clamp(lowest, highest)
+    } else {
+        0
+    };
+    // lo fires, hi does not.
+    let (mut lo, mut hi);
+    let mut step: i64 = 1;
+    if fires(T::from_rank(guess)) {
+        lo = guess;
+        loop {
+            if lo == highest {
+                return T::HIGHEST;
+            }
+            let next = lo.saturating_add(step).min(highest);
+            if !fires(T::from_rank(next)) {
+                hi = next;
+                break;
+            }
+            lo = next;
+            step = step.saturating_mul(2);
+        }
+    } else {
+        hi = guess;
+        loop {
+            if hi == lowest {
+                // Fires nowhere (excluded by the validated K and force_max).
+                return T::LOWEST;
+            }
+            let next = hi.saturating_sub(step).max(lowest);
+            if fires(T::from_rank(next)) {
+                lo = next;
+                break;
+            }
+            hi = next;
+            step = step.saturating_mul(2);
+        }
+    }
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        if fires(T::from_rank(mid)) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    T::from_rank(lo)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The threshold decides exactly as the force: around it (±64 ranks, where the roundings
+    /// decide), at random values, at the extremes and for NaN, in f32, f64 and Q31.32, over
+    /// random stiffnesses, free deflections and limits. Fails for a threshold one rank off.
+    fn threshold_is_exact<T: Real>(seed: u64) {
+        let mut x = seed;
+        let mut rnd = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..2000 {
+            let k = T::from_f64(0.01 + 50.0 * rnd());
+            let d_free = T::from_f64(-3000.0 + 6000.0 * rnd());
+            let fmax = T::from_f64(1.0 + 500.0 * rnd());
+            let th = force_limit_lp(k, d_free, fmax);
+            let force_fires = |lp: T| !(k * (d_free - lp) <= fmax);
+            let r = th.rank();
+            assert!(force_fires(th) && !force_fires(T::from_rank(r + 1)));
+            let check = |lp: T| assert_eq!(!(lp > th), force_fires(lp), "{lp:?} vs {th:?}");
+            for dr in -64..=64 {
+                check(T::from_rank(r + dr));
+            }
+            check(T::from_f64(-4000.0 + 8000.0 * rnd()));
+            check(T::LOWEST);
+            check(T::HIGHEST);
+            check(T::ZERO / T::ZERO);
+        }
+    }
+
+    #[test]
+    fn force_limit_threshold_is_exact() {
+        threshold_is_exact::<f32>(1);
+        threshold_is_exact::<f64>(2);
+        threshold_is_exact::<crate::fixed::Q32>(3);
+    }
 
     fn params() -> GuardParams<f64> {
         GuardParams {
