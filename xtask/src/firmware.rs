@@ -638,6 +638,28 @@ pub fn dive_tap() -> Scenario {
     }
 }
 
+/// Three DIVE taps pressing into a force limit (20 nN) below the indentation's (~35–50 nN):
+/// every tap retracts on the limit, each with its own free deflection (the limit's threshold
+/// on the low-passed deflection is set per tap). In the core digests only: no other run
+/// reaches the DIVE force limit.
+pub fn dive_force_limit() -> Scenario {
+    Scenario {
+        name: "dive-force-limit",
+        mode: Mode::Dive,
+        fw: config(&[
+            ("sample_rate_hz", 1e6),
+            ("dive.nx", 3.0),
+            ("dive.ny", 1.0),
+            ("dive.x0_m", 2.0e-6),
+            ("dive.y0_m", 2.5e-6),
+            ("dive.dx_m", 0.5e-6),
+            ("dive.tap_s", 0.05),
+            ("faults.force_max_n", 20e-9),
+        ]),
+        max_samples: 200_000,
+    }
+}
+
 /// One SVE line at 1 MHz with a 100 ms line period (the paper's is 2 s) and a 10 ms settle:
 /// move, approach, settle, the forward and the backward pass (50 pixels each), retract.
 pub fn sve_line() -> Scenario {
@@ -2392,6 +2414,7 @@ pub fn core_digest_lines() -> Result<Vec<String>> {
         sve_lockstep(),
         explore(Mode::Dive),
         explore(Mode::Sve),
+        dive_force_limit(),
     ]
     .map(|s| (s, Number::F32));
     let q32_runs = [
@@ -2399,6 +2422,7 @@ pub fn core_digest_lines() -> Result<Vec<String>> {
         (sve_line(), Estimator::LeastSquares),
         (dive_tap(), Estimator::Gradient),
         (sve_line(), Estimator::Gradient),
+        (dive_force_limit(), Estimator::LeastSquares),
     ]
     .map(|(s, e)| {
         let mut s = with_estimator(s, e);
@@ -2414,6 +2438,19 @@ pub fn core_digest_lines() -> Result<Vec<String>> {
     let mut lines = Vec::new();
     for (s, number) in f32_runs.into_iter().chain(q32_runs) {
         let sim = simulate_as(&s, number)?;
+        let limited = sim
+            .steps
+            .iter()
+            .filter(|f| f.status & visco_core::status::FORCE_LIMIT != 0)
+            .count();
+        if s.name == dive_force_limit().name && limited < 3 {
+            return Err(format!(
+                "{} ({}): the force limit fired at {limited} samples, not in every tap: the \
+                 run no longer pins it down",
+                s.name,
+                number.name()
+            ));
+        }
         let mut rd = visco_protocol::crc::Crc32::new();
         for r in &sim.records {
             rd.update(format!("{r:?}").as_bytes());
