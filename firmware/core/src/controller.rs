@@ -526,6 +526,9 @@ struct DiveState<T> {
     /// target tip position z₀ = h − indent (the offset regressor).
     r: T,
     d_free: T,
+    /// The highest low-passed deflection at which the force limit fires, for `d_free`
+    /// ([`crate::guard::force_limit_lp`]).
+    force_lp_max: T,
     theta_warm: [T; 3],
     acc: Accumulator<T>,
     flags: u32,
@@ -808,6 +811,11 @@ impl<T: SineTable> Controller<T> {
             z0: T::ZERO,
             r: T::ZERO,
             d_free: T::ZERO,
+            force_lp_max: crate::guard::force_limit_lp(
+                p.reg.stiffness,
+                T::ZERO,
+                p.guard_dive.force_max,
+            ),
             theta_warm: p.dive.theta0,
             acc: Accumulator::default(),
             flags: 0,
@@ -1408,6 +1416,11 @@ impl<T: SineTable> Controller<T> {
                 if t >= self.p.dive.move_samples {
                     self.contact = ContactDetector::new(d);
                     self.dive.d_free = d;
+                    self.dive.force_lp_max = crate::guard::force_limit_lp(
+                        self.p.reg.stiffness,
+                        d,
+                        self.p.guard_dive.force_max,
+                    );
                     self.dive.approach_from = u;
                     self.set_phase(Phase::Approach);
                 }
@@ -1515,8 +1528,10 @@ impl<T: SineTable> Controller<T> {
     #[inline(always)]
     fn dive_force_limit(&mut self, d: T, u: &mut T, st: &mut u32) -> bool {
         self.contact.lowpass(&self.p.contact, d);
-        let force = self.p.reg.stiffness * (self.dive.d_free - self.contact.lowpassed());
-        if force <= self.p.guard_dive.force_max {
+        // `K·(d_free − lp) > force_max` decided on lp alone, exactly (the threshold set with
+        // d_free per tap): one comparison where the force took a subtraction, a product and
+        // two more loads per sample.
+        if self.contact.lowpassed() > self.dive.force_lp_max {
             return false;
         }
         *st |= status::FORCE_LIMIT;

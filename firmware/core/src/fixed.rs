@@ -339,6 +339,14 @@ macro_rules! fixed {
             fn is_finite(self) -> bool {
                 true
             }
+            const LOWEST: Self = $name(i64::MIN);
+            const HIGHEST: Self = $name(i64::MAX);
+            fn rank(self) -> i64 {
+                self.0
+            }
+            fn from_rank(r: i64) -> Self {
+                $name(r)
+            }
         }
 
         static $table: [$name; TABLE_SIZE] = {

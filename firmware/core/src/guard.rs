@@ -295,9 +295,164 @@ pub struct FaultBits {
     pub spike: u32,
 }
 
+/// The DIVE force limit decided on the low-passed deflection alone: the highest `lp` at which
+/// `K·(d_free − lp) > force_max` in `T`'s arithmetic, so that the per-sample test
+/// `!(lp > threshold)` fires for exactly the same `lp` (NaN included) as the force it replaces
+/// — a comparison instead of a subtraction, a product and a comparison per sample.
+///
+/// Exact: the force is non-increasing in `lp` (a subtraction and a product by `K > 0`, each
+/// correctly rounded or rounded half away and saturated, are monotone), so the values at which it
+/// fires are all those up to one; that one is found by a search over the ranks of `T`'s values
+/// ([`Real::rank`]): outward from the real-number threshold in doubling steps until bracketed,
+/// then bisection (a few evaluations, at most ~130; once per tap, at the approach's start).
+/// With `K` and `force_max` positive and finite (validated) the force does not fire at
+/// `T::HIGHEST`, and it fires at `T::LOWEST` — the floats' K·∞ = ∞; Q31.32's saturated
+/// K·(d_free − MIN) ≈ K·2³¹ nN, far above any force limit. Were it not to (a force limit that
+/// can never fire), the threshold is `T::LOWEST` and differs from the force at that one value.
+/// A NaN `d_free` fires everywhere: the threshold is then `T::HIGHEST`.
+pub fn force_limit_lp<T: Real>(k: T, d_free: T, force_max: T) -> T {
+    let fires = |lp: T| !(k * (d_free - lp) <= force_max);
+    let (lowest, highest) = (T::LOWEST.rank(), T::HIGHEST.rank());
+    let guess = d_free.to_f64() - force_max.to_f64() / k.to_f64();
+    let guess = if guess.is_finite() {
+        T::from_f64(guess).rank().clamp(lowest, highest)
+    } else {
+        0
+    };
+    // lo fires, hi does not.
+    let (mut lo, mut hi);
+    let mut step: i64 = 1;
+    if fires(T::from_rank(guess)) {
+        lo = guess;
+        loop {
+            if lo == highest {
+                return T::HIGHEST;
+            }
+            let next = lo.saturating_add(step).min(highest);
+            if !fires(T::from_rank(next)) {
+                hi = next;
+                break;
+            }
+            lo = next;
+            step = step.saturating_mul(2);
+        }
+    } else {
+        hi = guess;
+        loop {
+            if hi == lowest {
+                // Fires nowhere (excluded by the validated K and force_max).
+                return T::LOWEST;
+            }
+            let next = hi.saturating_sub(step).max(lowest);
+            if fires(T::from_rank(next)) {
+                lo = next;
+                break;
+            }
+            hi = next;
+            step = step.saturating_mul(2);
+        }
+    }
+    // lo < hi, so lo + 1 cannot overflow; `midpoint` cannot either (the ranks span up to
+    // 2⁶⁴, more than `hi − lo` holds), and with hi ≥ lo + 2 it lies strictly between.
+    while lo + 1 < hi {
+        let mid = lo.midpoint(hi);
+        if fires(T::from_rank(mid)) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    T::from_rank(lo)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The threshold decides exactly as the force: around it (±64 ranks, where the roundings
+    /// decide), at random values, at the extremes and for NaN, in f32, f64 and Q31.32, over
+    /// random stiffnesses, free deflections and limits. Fails for a threshold one rank off.
+    fn threshold_is_exact<T: Real>(seed: u64) {
+        let mut x = seed;
+        let mut rnd = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..2000 {
+            let k = T::from_f64(0.01 + 50.0 * rnd());
+            let d_free = T::from_f64(-3000.0 + 6000.0 * rnd());
+            let fmax = T::from_f64(1.0 + 500.0 * rnd());
+            let th = force_limit_lp(k, d_free, fmax);
+            let force_fires = |lp: T| !(k * (d_free - lp) <= fmax);
+            let r = th.rank();
+            assert!(force_fires(th) && !force_fires(T::from_rank(r + 1)));
+            let check = |lp: T| assert_eq!(!(lp > th), force_fires(lp), "{lp:?} vs {th:?}");
+            for dr in -64..=64 {
+                check(T::from_rank(r + dr));
+            }
+            check(T::from_f64(-4000.0 + 8000.0 * rnd()));
+            check(T::LOWEST);
+            check(T::HIGHEST);
+            check(T::ZERO / T::ZERO);
+        }
+    }
+
+    /// Far from the usual numbers: thresholds beyond the finite range, a NaN free deflection
+    /// (fires everywhere), Q31.32 near its ends; the search brackets across most of the ranks
+    /// (without overflow: `cargo test` checks it) and still decides as the force.
+    fn threshold_at_the_extremes<T: Real>(cases: &[(f64, f64, f64)]) {
+        for &(k, d_free, fmax) in cases {
+            let (k, d_free, fmax) = (T::from_f64(k), T::from_f64(d_free), T::from_f64(fmax));
+            let th = force_limit_lp(k, d_free, fmax);
+            let force_fires = |lp: T| !(k * (d_free - lp) <= fmax);
+            let (lo, hi) = (T::LOWEST.rank(), T::HIGHEST.rank());
+            let r = th.rank();
+            let near = [r.saturating_sub(1), r, r.saturating_add(1)];
+            for x in [lo, lo + 1, -(1 << 40), -1, 0, 1, 1 << 40, hi - 1, hi]
+                .into_iter()
+                .chain(near)
+            {
+                let lp = T::from_rank(x.clamp(lo, hi));
+                assert_eq!(!(lp > th), force_fires(lp), "{lp:?} vs {th:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn force_limit_threshold_at_the_extremes() {
+        let cases = [
+            (1e-300, 0.0, 1e300),
+            (1e300, 1e300, 1e-300),
+            (1.0, f64::NAN, 100.0),
+            (1.0, -1e308, 1e308),
+        ];
+        threshold_at_the_extremes::<f64>(&cases);
+        threshold_at_the_extremes::<f32>(&[(1e-30, 0.0, 1e30), (1.0, f32::NAN as f64, 1.0)]);
+        threshold_at_the_extremes::<crate::fixed::Q32>(&[
+            (1e-3, 0.0, 2e6),
+            (1.0, -2e9, 1e8),
+            (2e9, 2e9, 1e-9),
+        ]);
+        // The one case the threshold cannot express: a limit the force never reaches (K·2³¹
+        // below it, in Q31.32): the threshold is the lowest value, wrong there only.
+        use crate::fixed::Q32;
+        let (k, fmax) = (Q32::from_f64(1e-9), Q32::from_f64(2e9));
+        let th = force_limit_lp(k, Q32::ZERO, fmax);
+        assert_eq!(th, Q32::LOWEST);
+        assert!(k * (Q32::ZERO - Q32::LOWEST) <= fmax);
+        // Above it the test does not fire, as the force; at it, it does (the difference).
+        assert!(Q32::from_rank(Q32::LOWEST.rank() + 1) > th);
+        assert!(!(Q32::LOWEST > th));
+    }
+
+    #[test]
+    fn force_limit_threshold_is_exact() {
+        threshold_is_exact::<f32>(1);
+        threshold_is_exact::<f64>(2);
+        threshold_is_exact::<crate::fixed::Q32>(3);
+    }
 
     fn params() -> GuardParams<f64> {
         GuardParams {

@@ -42,6 +42,16 @@ pub trait Real:
     fn round_i32(self) -> i32;
     /// False for NaN and ±∞.
     fn is_finite(self) -> bool;
+    /// The lowest value (−∞ for the floats).
+    const LOWEST: Self;
+    /// The highest value (+∞ for the floats).
+    const HIGHEST: Self;
+    /// The value's rank among all the type's values: `a < b` ⟺ `a.rank() < b.rank()` (NaN
+    /// excluded; −0 and +0 share rank 0), so that a search over the values between two is a
+    /// search over integers (exact thresholds, found once per tap, off the per-sample path).
+    fn rank(self) -> i64;
+    /// The value of a rank from `LOWEST.rank()` to `HIGHEST.rank()`.
+    fn from_rank(r: i64) -> Self;
 
     /// |x|
     #[inline(always)]
@@ -103,6 +113,22 @@ impl Real for f32 {
     fn is_finite(self) -> bool {
         f32::is_finite(self)
     }
+    const LOWEST: Self = f32::NEG_INFINITY;
+    const HIGHEST: Self = f32::INFINITY;
+    fn rank(self) -> i64 {
+        // IEEE-754 orders the magnitudes of one sign as their bit patterns.
+        let b = self.to_bits();
+        let m = i64::from(b & 0x7FFF_FFFF);
+        if b >> 31 != 0 {
+            -m
+        } else {
+            m
+        }
+    }
+    fn from_rank(r: i64) -> Self {
+        let m = r.unsigned_abs().min(0x7FFF_FFFF) as u32;
+        f32::from_bits(if r < 0 { m | 0x8000_0000 } else { m })
+    }
 }
 
 impl Real for f64 {
@@ -133,5 +159,21 @@ impl Real for f64 {
     #[inline(always)]
     fn is_finite(self) -> bool {
         f64::is_finite(self)
+    }
+    const LOWEST: Self = f64::NEG_INFINITY;
+    const HIGHEST: Self = f64::INFINITY;
+    fn rank(self) -> i64 {
+        // As for f32.
+        let b = self.to_bits();
+        let m = (b & 0x7FFF_FFFF_FFFF_FFFF) as i64;
+        if b >> 63 != 0 {
+            -m
+        } else {
+            m
+        }
+    }
+    fn from_rank(r: i64) -> Self {
+        let m = r.unsigned_abs() & 0x7FFF_FFFF_FFFF_FFFF;
+        f64::from_bits(if r < 0 { m | (1 << 63) } else { m })
     }
 }
