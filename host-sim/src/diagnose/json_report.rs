@@ -255,9 +255,10 @@ pub struct TestJson {
     /// Holm-adjusted p-value.
     pub p_adjusted: Num,
     pub significant: bool,
-    /// The misfit the test attributes, as an RMS over the noise RMS (an offset's size, a
-    /// line's RMS, the excess variance's square root, the explained share of the variance's
-    /// square root for the correlation tests).
+    /// The misfit the test attributes on the whitened residual, over the noise model's
+    /// innovation σ (a signal-to-noise ratio): an offset's |mean|, a line's RMS, the excess
+    /// variance's √(χ²/n − 1), for the correlation tests the explained part's RMS over the
+    /// rest's.
     pub size_over_noise: Num,
     /// Significant, and `size_over_noise` at least 0.5: a misfit that matters.
     pub material: bool,

@@ -17,11 +17,17 @@
 //! | map | excess variance per tap (recordings of several taps with X, Y) | χ², n dof |
 //!
 //! A test is *significant* at the family's level; it is *material* when it is significant and
-//! the misfit it attributes is at least [`MATERIAL`] (half the noise RMS). Each test's size:
-//! an offset's |mean|, the excess variance's √(χ²/n − 1), a line's RMS, the share of the
-//! variance the correlation tests explain (√), the CUSUM's mean up to its excursion, all
-//! over the noise σ. A line at f₀ is material only beyond the free lever's thermal variance
-//! k_B·T/K at 300 K, which its Brownian motion puts there on a clean recording.
+//! the misfit it attributes is at least [`MATERIAL`]. Sizes are on the whitened residual over
+//! the innovation σ — a signal-to-noise ratio where the noise model puts the noise: an
+//! offset's |mean|, the excess variance's √(χ²/n − 1), for the correlation tests the
+//! explained part's RMS over the rest's (√(R²/(1 − R²)) of a regression on the 20 past samples
+//! or the 21 lagged input increments), the CUSUM's mean up to its excursion, and the RMS of a
+//! line at the lever's resonances (f₀, 4–9 f₀), whose thermal ringing is part of the noise
+//! model. A line the drive makes (its tones, harmonics, intermodulation) is sized on the
+//! residual itself over its RMS: the noise knows nothing of the drive, and an autoregressive
+//! noise model fitted to a residual with such a line would take part of it for noise. A
+//! misfit the noise model absorbs (a slow wander it takes for coloured noise) reads small on
+//! the whitened scale; the held-out RMS and the verdict still count it.
 //!
 //! Phases come from the fitted nominal model (in contact or not) and the slow motion of the
 //! base (U smoothed over the excitation): `approach` (moving towards the sample, free),
@@ -299,7 +305,6 @@ pub fn locate(
     r_nom: &[f64],
     r_fin: &[f64],
     noise: &NoiseModel,
-    thermal_nm2: f64,
     alpha: f64,
 ) -> Located {
     let n = r_nom.len();
@@ -437,6 +442,8 @@ pub fn locate(
     let fs = p.fs_hz();
     let seg = (n / 8).clamp(64, 4096);
     let spec_b = Spectrum::welch(r_nom, fs, seg);
+    // The resonances' lines sized on the whitened residual (below).
+    let spec_w = Spectrum::welch(&e, fs, seg);
     let spec_a = Spectrum::welch(r_fin, fs, seg);
     let spec_u = Spectrum::welch(&p.data.u, fs, seg);
     let mut tones: Vec<f64> = Vec::new();
@@ -455,20 +462,21 @@ pub fn locate(
         tones = peaks.iter().take(2).map(|x| x.0).collect();
         tones.sort_by(f64::total_cmp);
     }
-    let mut lines: Vec<(String, f64)> = Vec::new();
+    // (name, frequency, whether the drive makes it: the noise knows nothing of the drive, so
+    // such a line is sized on the residual itself; the lever's resonances are sized on the
+    // whitened residual, where its thermal ringing is part of the noise model).
+    let mut lines: Vec<(String, f64, bool)> = Vec::new();
     for (i, &f) in tones.iter().enumerate() {
-        lines.push((format!("tone {} ({:.4e} Hz)", i + 1, f), f));
-        lines.push((format!("2nd harmonic of tone {}", i + 1), 2.0 * f));
-        lines.push((format!("3rd harmonic of tone {}", i + 1), 3.0 * f));
+        lines.push((format!("tone {} ({:.4e} Hz)", i + 1, f), f, true));
+        lines.push((format!("2nd harmonic of tone {}", i + 1), 2.0 * f, true));
+        lines.push((format!("3rd harmonic of tone {}", i + 1), 3.0 * f, true));
     }
     if tones.len() == 2 {
-        lines.push(("intermodulation f1 + f2".into(), tones[0] + tones[1]));
-        lines.push(("intermodulation f2 − f1".into(), tones[1] - tones[0]));
+        lines.push(("intermodulation f1 + f2".into(), tones[0] + tones[1], true));
+        lines.push(("intermodulation f2 − f1".into(), tones[1] - tones[0], true));
     }
-    let mut f0_line = None;
     if let Some(f0) = p.inst.f0_mhz().map(|f| f / TIME) {
-        f0_line = Some(lines.len());
-        lines.push((format!("first resonance f0 ({f0:.4e} Hz)"), f0));
+        lines.push((format!("first resonance f0 ({f0:.4e} Hz)"), f0, false));
         if let Some((f2, _)) = spec_b
             .transient_peaks(4.0 * f0, (9.0 * f0).min(0.48 * fs), 1)
             .first()
@@ -476,12 +484,12 @@ pub fn locate(
             lines.push((
                 format!("strongest line between 4 and 9 f0 ({f2:.4e} Hz)"),
                 *f2,
+                false,
             ));
         }
     }
     let dof = 2.0 * spec_b.segments.max(1) as f64;
-    for (j, (name, f)) in lines.into_iter().enumerate() {
-        let at_f0 = f0_line == Some(j);
+    for (name, f, of_drive) in lines {
         if !(f > 0.0 && f < 0.5 * fs) {
             continue;
         }
@@ -499,16 +507,11 @@ pub fn locate(
             p_value: chi2_sf(ratio * dof, dof),
             p_adjusted: f64::NAN,
             significant: false,
-            // At f₀ the lever's own Brownian motion makes a line of up to k_B·T/K: only power
-            // beyond it is a misfit.
-            size: line_size(
-                &spec_b,
-                k,
-                floor,
-                fs,
-                noise.raw_sigma,
-                if at_f0 { thermal_nm2 } else { 0.0 },
-            ),
+            size: if of_drive {
+                line_size(&spec_b, f, fs, noise.raw_sigma)
+            } else {
+                line_size(&spec_w, f, fs, sigma)
+            },
             material: false,
             detail: format!(
                 "{:.3e} m²/Hz at {:.4e} Hz against a floor of {:.3e} m²/Hz",
@@ -571,14 +574,18 @@ pub fn locate(
             p_value: chi2_sf(q, lags as f64),
             p_adjusted: f64::NAN,
             significant: false,
-            size: (q / total as f64).sqrt(),
+            // The share its own 20 past samples predict (the same regression as the input's).
+            size: {
+                let (qa, _, rows) = lag_regression(&e, &e, &runs, p_ar, 1..=lags, c0.sqrt());
+                snr(qa / rows.max(1) as f64)
+            },
             material: false,
             detail: "autocorrelation of the whitened held-out residual".to_string(),
             span: None,
             freq_hz: None,
         });
         if du_sd > 0.0 {
-            let (q, dof, rows) = input_regression(&e, &du, &runs, p_ar, lags, c0.sqrt());
+            let (q, dof, rows) = lag_regression(&e, &du, &runs, p_ar, 0..=lags, c0.sqrt());
             if dof > 0 && rows > 4 * (lags + 1) {
                 tests.push(Test {
                     group: "input",
@@ -588,7 +595,7 @@ pub fn locate(
                     p_value: chi2_sf(q, dof as f64),
                     p_adjusted: f64::NAN,
                     significant: false,
-                    size: (q / rows as f64).sqrt(),
+                    size: snr(q / rows as f64),
                     material: false,
                     detail: format!(
                         "what of the input the residual still follows ({dof} independent \
@@ -677,40 +684,53 @@ pub fn locate(
 /// that a misfit is there, its size whether it matters.
 pub const MATERIAL: f64 = 0.5;
 
-/// The RMS of a line at bin `k` of a Hann-windowed Welch spectrum, above its local `floor`,
-/// less the power `expected` of the noise there, over the noise RMS `sigma` (a sinusoid of
-/// amplitude A puts A²/2 into 1.5 bins: the Hann window's equivalent noise bandwidth).
-fn line_size(s: &Spectrum, k: usize, floor: f64, fs: f64, sigma: f64, expected: f64) -> f64 {
+/// The RMS of a line at `f` in a Hann-windowed Welch spectrum, over `sigma`: the power above
+/// the local floor over the window's main lobe (bins k ± 2, so a line between bins counts
+/// whole).
+fn line_size(s: &Spectrum, f: f64, fs: f64, sigma: f64) -> f64 {
+    let Some(k) = s.bin(f) else { return 0.0 };
+    let floor = s.local_floor(k, 12);
+    if !(floor > 0.0) {
+        return 0.0;
+    }
     let bins = s.f_hz.len().saturating_sub(1).max(1) as f64;
     let df = 0.5 * fs / bins;
-    let power = (s.psd[k] - floor).max(0.0) * 1.5 * df - expected;
+    let lobe = k.saturating_sub(2)..(k + 3).min(s.psd.len());
+    let power: f64 = s.psd[lobe].iter().map(|p| (p - floor) * df).sum();
     power.max(0.0).sqrt() / sigma.max(1e-300)
 }
 
-/// The whitened residual `e` (scaled by `scale` to unit variance) regressed on the input's
-/// increments at lags 0..=`lags` over the held-out `runs`: the explained sum of squares, its
-/// degrees of freedom (the rank of the lagged increments) and the rows used. Under the null
-/// the residual is white and independent of the input, so the sum is χ² with that many
-/// degrees of freedom whatever the input's own correlation; the sum of squared
-/// cross-correlations it replaces is not (a force curve's increments are nearly constant, so
-/// its 21 lags are one direction counted 21 times, and a clean curve read as significant).
-fn input_regression(
+/// A share R² of the variance explained, as the explained part's RMS over the rest's.
+fn snr(r2: f64) -> f64 {
+    (r2.max(0.0) / (1.0 - r2).max(1e-12)).sqrt()
+}
+
+/// The whitened residual `e` (scaled by `scale` to unit variance) regressed on `x` at `lags`
+/// (the input's increments at 0..=20, or `e` itself at 1..=20) over the held-out `runs`: the
+/// explained sum of squares, its degrees of freedom (the rank of the lagged regressors) and
+/// the rows used. Where the whitened residual is white and independent of the input, the sum
+/// is χ² with that many degrees of freedom whatever the input's own correlation; the sum of
+/// squared cross-correlations it replaced is not (a force curve's increments are nearly
+/// constant, so its 21 lags are one direction counted 21 times, and a clean curve read as
+/// significant).
+fn lag_regression(
     e: &[f64],
-    du: &[f64],
+    x_of: &[f64],
     runs: &[(usize, usize)],
     p_ar: usize,
-    lags: usize,
+    lags: std::ops::RangeInclusive<usize>,
     scale: f64,
 ) -> (f64, usize, usize) {
-    let k = lags + 1;
+    let (first, last) = (*lags.start(), *lags.end());
+    let k = last + 1 - first;
     let mut g = DMatrix::<f64>::zeros(k, k);
     let mut b = DVector::<f64>::zeros(k);
     let mut rows = 0usize;
     let mut x = vec![0.0; k];
     for &(a, end) in runs {
-        for i in a.max(p_ar).max(lags)..end {
+        for i in a.max(p_ar).max(last)..end {
             for (j, xj) in x.iter_mut().enumerate() {
-                *xj = du[i - j];
+                *xj = x_of[i - first - j];
             }
             let y = e[i] / scale;
             for r in 0..k {
@@ -767,6 +787,25 @@ fn rms_at(r: &[f64], idx: &[usize]) -> f64 {
 mod tests {
     use super::*;
 
+    /// A line of RMS 0.5 in white noise of σ 1 reads 0.5, on a bin or between two.
+    #[test]
+    fn a_line_reads_its_rms_on_or_between_bins() {
+        use crate::plant::rng::NormalRng;
+        let mut rng = NormalRng::new(9);
+        let (n, fs) = (1usize << 16, 1.0e6);
+        for f in [fs * 410.0 / 4096.0, fs * 410.5 / 4096.0] {
+            let x: Vec<f64> = (0..n)
+                .map(|i| {
+                    let t = i as f64 / fs;
+                    rng.normal() + 0.5 * 2f64.sqrt() * (2.0 * std::f64::consts::PI * f * t).sin()
+                })
+                .collect();
+            let s = Spectrum::welch(&x, fs, 4096);
+            let size = line_size(&s, f, fs, 1.0);
+            assert!((size - 0.5).abs() < 0.04, "f = {f} Hz: {size}");
+        }
+    }
+
     /// On a force curve's input (increments constant on the approach, opposite on the
     /// retract, zero in the dwell) a white residual independent of it must reach the 5 %
     /// level in about 5 % of trials. The sum of squared cross-correlations the regression
@@ -788,7 +827,7 @@ mod tests {
         let (mut hits, mut old_hits) = (0, 0);
         for _ in 0..trials {
             let e: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
-            let (q, dof, rows) = input_regression(&e, &du, &runs, 0, 20, 1.0);
+            let (q, dof, rows) = lag_regression(&e, &du, &runs, 0, 0..=20, 1.0);
             assert_eq!(rows, n - 20);
             if chi2_sf(q, dof as f64) < 0.05 {
                 hits += 1;
@@ -817,8 +856,8 @@ mod tests {
     }
 
     /// A residual that follows the input at lag 5 with a gain of 0.3 (unit-variance white
-    /// increments): the regression finds it, and its size is the explained share's root,
-    /// √(0.09/1.09) = 0.287.
+    /// increments): the regression finds it, and its size is the followed part's RMS over the
+    /// rest's, 0.3.
     #[test]
     fn input_regression_sizes_what_the_residual_follows() {
         use crate::plant::rng::NormalRng;
@@ -829,10 +868,10 @@ mod tests {
             .map(|i| rng.normal() + if i >= 5 { 0.3 * du[i - 5] } else { 0.0 })
             .collect();
         let scale = (1.0f64 + 0.09).sqrt();
-        let (q, dof, rows) = input_regression(&e, &du, &[(0, n)], 0, 20, scale);
+        let (q, dof, rows) = lag_regression(&e, &du, &[(0, n)], 0, 0..=20, scale);
         assert_eq!(dof, 21);
-        let size = (q / rows as f64).sqrt();
-        assert!((size - 0.287).abs() < 0.02, "size {size}");
+        let size = snr(q / rows as f64);
+        assert!((size - 0.3).abs() < 0.02, "size {size}");
         assert!(chi2_sf(q, 21.0) < 1e-100);
     }
 

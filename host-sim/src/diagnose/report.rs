@@ -183,7 +183,6 @@ pub fn analyse(
         &r_nom,
         &r_fin,
         &search.nominal_noise,
-        lever_thermal_nm2(&p),
         opts.alpha,
     );
     // Held-out RMS of a residual in nm, over the samples `idx` selects, in metres.
