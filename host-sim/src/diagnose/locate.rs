@@ -241,7 +241,7 @@ pub struct Test {
     /// Holm-adjusted p-value.
     pub p_adjusted: f64,
     pub significant: bool,
-    /// The misfit the test attributes, as an RMS over the noise's (see [`MATERIAL`]).
+    /// The misfit the test attributes over the noise (the module docs' scale).
     pub size: f64,
     /// Significant and at least [`MATERIAL`] in size.
     pub material: bool,
@@ -676,17 +676,17 @@ pub fn locate(
     }
 }
 
-/// The smallest misfit a located test reports as material: an RMS of half the noise's, the
-/// size the effects' detection floor ([`super::search::DETECTION_FLOOR`]) asks of an effect's
-/// peak. With 10⁴–10⁵ held-out samples the tests see far smaller misfits (a mean offset of
+/// The smallest misfit a located test reports as material: half the noise (on the scale of
+/// the module docs; the effects' detection floor, [`super::search::DETECTION_FLOOR`], asks
+/// the same of an effect's peak over the raw noise RMS). With 10⁴–10⁵ held-out samples the tests see far smaller misfits (a mean offset of
 /// 0.06 σ over a dwell is significant), which no plot of the residual would show and which
 /// a model of another simulator's integrator can leave on clean data; a test's p-value says
 /// that a misfit is there, its size whether it matters.
 pub const MATERIAL: f64 = 0.5;
 
-/// The RMS of a line at `f` in a Hann-windowed Welch spectrum, over `sigma`: the power above
-/// the local floor over the window's main lobe (bins k ± 2, so a line between bins counts
-/// whole).
+/// The RMS of a line at `f` in a Hann-windowed Welch spectrum of a residual of RMS `sigma`,
+/// over the rest's: the power above the local floor over the window's main lobe (bins k ± 2,
+/// so a line between bins counts whole).
 fn line_size(s: &Spectrum, f: f64, fs: f64, sigma: f64) -> f64 {
     let Some(k) = s.bin(f) else { return 0.0 };
     let floor = s.local_floor(k, 12);
@@ -697,7 +697,8 @@ fn line_size(s: &Spectrum, f: f64, fs: f64, sigma: f64) -> f64 {
     let df = 0.5 * fs / bins;
     let lobe = k.saturating_sub(2)..(k + 3).min(s.psd.len());
     let power: f64 = s.psd[lobe].iter().map(|p| (p - floor) * df).sum();
-    power.max(0.0).sqrt() / sigma.max(1e-300)
+    // `sigma` is the whole residual's, the line included: the line over the rest.
+    snr(power / (sigma * sigma).max(1e-300))
 }
 
 /// A share R² of the variance explained, as the explained part's RMS over the rest's.
@@ -707,8 +708,8 @@ fn snr(r2: f64) -> f64 {
 
 /// The whitened residual `e` (scaled by `scale` to unit variance) regressed on `x` at `lags`
 /// (the input's increments at 0..=20, or `e` itself at 1..=20) over the held-out `runs`: the
-/// explained sum of squares, its degrees of freedom (the rank of the lagged regressors) and
-/// the rows used. Where the whitened residual is white and independent of the input, the sum
+/// explained sum of squares beyond a constant's, its degrees of freedom (the rank of the
+/// lagged regressors beside the constant) and the rows used. Where the whitened residual is white and independent of the input, the sum
 /// is χ² with that many degrees of freedom whatever the input's own correlation; the sum of
 /// squared cross-correlations it replaced is not (a force curve's increments are nearly
 /// constant, so its 21 lags are one direction counted 21 times, and a clean curve read as
@@ -722,16 +723,19 @@ fn lag_regression(
     scale: f64,
 ) -> (f64, usize, usize) {
     let (first, last) = (*lags.start(), *lags.end());
-    let k = last + 1 - first;
+    // The lagged regressors and a constant, so that an offset of the residual is not read as
+    // following the input (a one-way ramp's increments have a mean).
+    let k = last + 2 - first;
     let mut g = DMatrix::<f64>::zeros(k, k);
     let mut b = DVector::<f64>::zeros(k);
     let mut rows = 0usize;
     let mut x = vec![0.0; k];
     for &(a, end) in runs {
         for i in a.max(p_ar).max(last)..end {
-            for (j, xj) in x.iter_mut().enumerate() {
+            for (j, xj) in x[..k - 1].iter_mut().enumerate() {
                 *xj = x_of[i - first - j];
             }
+            x[k - 1] = 1.0;
             let y = e[i] / scale;
             for r in 0..k {
                 b[r] += x[r] * y;
@@ -759,7 +763,9 @@ fn lag_regression(
             dof += 1;
         }
     }
-    (q, dof, rows)
+    // Less what the constant alone explains (its one degree of freedom).
+    let mean_part = b[k - 1] * b[k - 1] / rows.max(1) as f64;
+    ((q - mean_part).max(0.0), dof.saturating_sub(1), rows)
 }
 
 /// Holm's step-down adjustment at family-wise rate `alpha`.
@@ -787,6 +793,20 @@ fn rms_at(r: &[f64], idx: &[usize]) -> f64 {
 mod tests {
     use super::*;
 
+    /// A residual offset by half its σ on a one-way ramp (increments 1 ± 0.1): the offset is
+    /// not the input's doing, and the regression, with its constant, does not say it is.
+    #[test]
+    fn an_offset_is_not_read_as_following_the_input() {
+        use crate::plant::rng::NormalRng;
+        let mut rng = NormalRng::new(23);
+        let n = 5000;
+        let du: Vec<f64> = (0..n).map(|_| 1.0 + 0.1 * rng.normal()).collect();
+        let e: Vec<f64> = (0..n).map(|_| rng.normal() + 0.5).collect();
+        let (q, dof, _) = lag_regression(&e, &du, &[(0, n)], 0, 0..=20, 1.0);
+        assert_eq!(dof, 21);
+        assert!(chi2_sf(q, dof as f64) > 1e-3, "q {q}");
+    }
+
     /// A line of RMS 0.5 in white noise of σ 1 reads 0.5, on a bin or between two.
     #[test]
     fn a_line_reads_its_rms_on_or_between_bins() {
@@ -801,7 +821,8 @@ mod tests {
                 })
                 .collect();
             let s = Spectrum::welch(&x, fs, 4096);
-            let size = line_size(&s, f, fs, 1.0);
+            // The residual's RMS, the line included.
+            let size = line_size(&s, f, fs, 1.25f64.sqrt());
             assert!((size - 0.5).abs() < 0.04, "f = {f} Hz: {size}");
         }
     }
