@@ -352,10 +352,11 @@ pub fn force_limit_lp<T: Real>(k: T, d_free: T, force_max: T) -> T {
             step = step.saturating_mul(2);
         }
     }
-    // lo < hi, so lo + 1 cannot overflow; `midpoint` cannot either (the ranks span up to
-    // 2⁶⁴, more than `hi − lo` holds), and with hi ≥ lo + 2 it lies strictly between.
+    // lo < hi, so lo + 1 cannot overflow; the midpoint is taken in i128 (the ranks span up to
+    // 2⁶⁴, more than `hi − lo` holds; `i64::midpoint` is newer than the workspace's Rust 1.85),
+    // rounded towards zero, and with hi ≥ lo + 2 it lies strictly between.
     while lo + 1 < hi {
-        let mid = lo.midpoint(hi);
+        let mid = ((i128::from(lo) + i128::from(hi)) / 2) as i64;
         if fires(T::from_rank(mid)) {
             lo = mid;
         } else {
