@@ -256,6 +256,8 @@ fn second_eigenmode_rings_at_its_frequency() {
         q: q2,
         gain: 0.0,
         base_gain: 0.3,
+        velocity_gain: 0.0,
+        static_gain: 0.0,
         k_n_per_m: K,
     }))
     .iter()
@@ -280,6 +282,75 @@ fn second_eigenmode_rings_at_its_frequency() {
     assert!(
         (rate / expect - 1.0).abs() < 0.05,
         "decay {rate}, expected {expect}"
+    );
+}
+
+/// The base's velocity route rings the mode in quadrature with its acceleration route: after a
+/// step ΔU the acceleration route reads ΔU·e^{-σt}(cos ω_d t − (σ/ω_d) sin ω_d t), the velocity
+/// route ΔU·(ω₂/ω_d)·e^{-σt} sin ω_d t — the same envelope, a quarter period apart.
+#[test]
+fn second_eigenmode_velocity_route_is_in_quadrature() {
+    let (f2, q2) = (125e3, 50.0);
+    let run = |base_gain: f64, velocity_gain: f64| -> Vec<f64> {
+        let mut p = plant(
+            bed(3e11, 6e7),
+            Some(EffectSpec::SecondEigenmode {
+                f_hz: f2,
+                q: q2,
+                gain: 0.0,
+                base_gain,
+                velocity_gain,
+                static_gain: 0.0,
+                k_n_per_m: K,
+            }),
+            1e-6,
+        );
+        hold(&mut p, 1e-6, 100);
+        (0..2000).map(|_| p.step(1.01e-6, 0.0, 0.0)).collect()
+    };
+    let plain = run(0.0, 0.0);
+    let minus = |d: Vec<f64>| -> Vec<f64> { d.iter().zip(&plain).map(|(a, b)| a - b).collect() };
+    let acc = minus(run(0.3, 0.0));
+    let vel = minus(run(0.0, 0.3));
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    let (n_a, n_v) = (dot(&acc, &acc).sqrt(), dot(&vel, &vel).sqrt());
+    // σ/ω_d = 1/(2Q₂) = 0.01: the two envelopes' energies agree to ~2 %, their correlation
+    // is that small too (one sample of 8 per period shifts the phase, not the energy).
+    assert!((n_v / n_a - 1.0).abs() < 0.03, "energy ratio {}", n_v / n_a);
+    let corr = dot(&acc, &vel) / (n_a * n_v);
+    assert!(corr.abs() < 0.03, "correlation {corr}");
+    // The velocity route's first peak is ΔU·g_V·ω₂/ω_d (10 nm × 0.3), within the envelope's
+    // decay over the quarter period it takes to get there.
+    let peak = vel[..10].iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    assert!((peak / (0.3 * 10e-9) - 1.0).abs() < 0.1, "{peak}");
+}
+
+/// The static gain reads the tip force itself: at rest in contact the reading gains
+/// `g_S·F/K`, the second mode's static compliance that a thermal tune's K leaves out.
+#[test]
+fn second_eigenmode_static_gain_reads_the_force() {
+    let g = 0.03;
+    let mut p = plant(
+        bed(3e11, 6e7),
+        Some(EffectSpec::SecondEigenmode {
+            f_hz: 125e3,
+            q: 50.0,
+            gain: 0.0,
+            base_gain: 0.0,
+            velocity_gain: 0.0,
+            static_gain: g,
+            k_n_per_m: K,
+        }),
+        1e-6,
+    );
+    hold(&mut p, -20e-9, 5000);
+    let f = p.contact_force_n();
+    assert!(f.abs() > 1e-10, "in contact: F = {f} N");
+    let added = p.measured_deflection_m() - p.true_deflection_m();
+    assert!(
+        (added / (g * f / K) - 1.0).abs() < 1e-6,
+        "reading gains {added} m, g·F/K = {} m",
+        g * f / K
     );
 }
 

@@ -282,6 +282,21 @@ impl Candidate {
                         log_grid(2.5, 600.0, 6),
                         true,
                     ),
+                    // The base's velocity route (a medium damping the mode's absolute
+                    // velocity): with the acceleration route it sets the phase of the mode's
+                    // response to the base, which no header gives.
+                    EffectParam::amplitude(
+                        Param::linear("base_velocity_gain", 0.0, -GAIN_MAX, GAIN_MAX, 0.05),
+                        0.05,
+                        false,
+                    ),
+                    // The tip force's static part, when the header's K (a thermal tune of
+                    // the first mode) leaves the mode's static compliance out.
+                    EffectParam::amplitude(
+                        Param::linear("force_static_gain", 0.0, -GAIN_MAX, GAIN_MAX, 0.05),
+                        0.05,
+                        false,
+                    ),
                 ]
             }
             EffectKind::PiezoCreep => vec![
@@ -341,6 +356,8 @@ impl Candidate {
                 q: v[3],
                 gain: v[0],
                 base_gain: v[1],
+                velocity_gain: v[4],
+                static_gain: v[5],
                 k_n_per_m: env.k_n_per_m,
             },
             EffectKind::PiezoCreep => EffectSpec::PiezoCreep {

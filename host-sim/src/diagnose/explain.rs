@@ -139,14 +139,17 @@ pub fn explain(kind: EffectKind, v: &[f64], env: &Env, spans: &[Span], peak_m: f
         ),
         EffectKind::SecondEigenmode => format!(
             "the cantilever's second flexural mode rings at {} ({:.2} × f0), Q2 = {:.0}, \
-             decaying over {}: rung by the base's motion (gain {:.3}) and by the tip force \
-             (gain {:.3}) (second eigenmode); {size}{w}",
+             decaying over {}: rung by the base's motion (gain {:.3} on its acceleration, \
+             {:.3} on its velocity) and by the tip force (gain {:.3} on its changes, {:.3} \
+             on the force itself) (second eigenmode); {size}{w}",
             frequency(v[2]),
             env.f0_hz.map_or(f64::NAN, |f0| v[2] / f0),
             v[3],
             time(v[3] / (std::f64::consts::PI * v[2])),
             v[1],
+            v[4],
             v[0],
+            v[5],
         ),
         EffectKind::PiezoCreep => format!(
             "the piezo creeps: {:.2} % of every move arrives late, with time constant {}, so \

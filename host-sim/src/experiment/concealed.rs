@@ -420,6 +420,11 @@ fn effect_spec(kind: EffectKind, setup: &Setup, shape: &[f64], a: f64) -> Effect
             q: shape[1],
             gain: shape[2] * a,
             base_gain: shape[3] * a,
+            // The plant's suite drives the mode by the base's acceleration and the tip force's
+            // dynamic part only (as before: its recordings are unchanged); refsim drives it
+            // by the base's velocity and the whole tip force.
+            velocity_gain: 0.0,
+            static_gain: 0.0,
             k_n_per_m: setup.cantilever.k_n_per_m,
         },
         EffectKind::PiezoCreep => EffectSpec::PiezoCreep {

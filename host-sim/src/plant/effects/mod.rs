@@ -253,6 +253,11 @@ pub enum EffectSpec {
         q: f64,
         gain: f64,
         base_gain: f64,
+        /// Gain on the base's velocity (`ω₂·s/(…)·U`).
+        velocity_gain: f64,
+        /// Gain on the tip force's static part (`F/K`: the mode's static compliance when K
+        /// leaves it out).
+        static_gain: f64,
         k_n_per_m: f64,
     },
     /// A fraction `fraction` of every move arrives with time constant `tau_s`.
@@ -329,12 +334,16 @@ impl EffectSpec {
                 q,
                 gain,
                 base_gain,
+                velocity_gain,
+                static_gain,
                 k_n_per_m,
             } => Box::new(SecondEigenmode::new(
                 f_hz * TIME,
                 *q,
                 *gain,
                 *base_gain,
+                *velocity_gain,
+                *static_gain,
                 k_n_per_m / STIFFNESS,
             )),
             EffectSpec::PiezoCreep { fraction, tau_s } => {
@@ -401,12 +410,16 @@ impl EffectSpec {
                 q,
                 gain,
                 base_gain,
+                velocity_gain,
+                static_gain,
                 ..
             } => vec![
                 p("f2_hz", *f_hz),
                 p("q2", *q),
                 p("force_gain", *gain),
                 p("base_gain", *base_gain),
+                p("base_velocity_gain", *velocity_gain),
+                p("force_static_gain", *static_gain),
             ],
             EffectSpec::PiezoCreep { fraction, tau_s } => {
                 vec![p("creep_fraction", *fraction), p("tau_s", *tau_s)]

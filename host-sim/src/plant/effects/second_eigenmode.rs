@@ -9,9 +9,18 @@
 //!   static share is already in K) — a ring after every sharp change of the tip force;
 //! * by the base's motion (the piezo shakes the lever's clamp): relative to the base the mode
 //!   follows `s²/(s² + (ω₂/Q₂)s + ω₂²)·U` — every step of a DAC's staircase, every jerk of
-//!   the piezo rings it — and the detector adds `g_U` times that.
+//!   the piezo rings it — and the detector adds `g_U` times that. A medium that damps the
+//!   mode's absolute velocity (liquid, air squeezed under the lever) drives it through the
+//!   base's velocity as well, `ω₂·s/(s² + (ω₂/Q₂)s + ω₂²)·U`, with its own gain `g_V`: the
+//!   mix of the two routes sets the phase of the mode's response to the base, which no
+//!   header gives, so both gains are fitted.
 //!
-//! Both are filters of what the recording and the model know (U) or compute (F_ts), so the
+//! Whether the mode's static share `g_F·F_ts/K` is in K depends on how K was calibrated (a
+//! static push, or a thermal tune of the first mode alone, whose modal stiffness leaves out
+//! the higher modes' static compliance, ~3 % of a uniform beam's): a third gain `g_S` adds
+//! `g_S·F_ts/K`, so that `g_S = g_F` is the whole `g_F·H₂·F_ts/K`.
+//!
+//! All are filters of what the recording and the model know (U) or compute (F_ts), so the
 //! ring is predicted sample by sample, and decays over `Q₂/(π f₂)`. The gains are the mode's
 //! optical-lever sensitivity relative to the first mode's (≈ 0.3 for an ideal beam) times its
 //! participation in each drive.
@@ -28,6 +37,8 @@ pub struct SecondEigenmode {
     q: f64,
     gain_force: f64,
     gain_base: f64,
+    gain_velocity: f64,
+    gain_static: f64,
     inv_k: f64,
     /// Force-driven mode (q nm, q̇ nm/µs, drive at the last step's end), base-driven mode
     /// (p nm, ṗ nm/µs).
@@ -36,9 +47,17 @@ pub struct SecondEigenmode {
 }
 
 impl SecondEigenmode {
-    /// Frequency (MHz, 1/µs), quality factor, gains on the tip force and on the base motion,
-    /// cantilever stiffness K (nN/nm).
-    pub fn new(f_mhz: f64, q: f64, gain_force: f64, gain_base: f64, k_cant: f64) -> Self {
+    /// Frequency (MHz, 1/µs), quality factor, gains on the tip force, on the base's
+    /// acceleration and on its velocity, cantilever stiffness K (nN/nm).
+    pub fn new(
+        f_mhz: f64,
+        q: f64,
+        gain_force: f64,
+        gain_base: f64,
+        gain_velocity: f64,
+        gain_static: f64,
+        k_cant: f64,
+    ) -> Self {
         let w = 2.0 * std::f64::consts::PI * f_mhz;
         let q = q.max(1e-3);
         SecondEigenmode {
@@ -48,6 +67,8 @@ impl SecondEigenmode {
             q,
             gain_force,
             gain_base,
+            gain_velocity,
+            gain_static,
             inv_k: 1.0 / k_cant,
             state: None,
             prop: (f64::NAN, Propagator::default()),
@@ -81,7 +102,12 @@ impl SecondEigenmode {
     fn reading(&self, s: &[f64; 5], u: f64) -> f64 {
         // Base drive: s²/(s² + (ω₂/Q₂)s + ω₂²)·U = U − p − ṗ/(Q₂ω₂) with p = H₂·U.
         let base = u - s[3] - s[4] / (self.q * self.w);
-        self.gain_force * (s[0] - s[2]) + self.gain_base * base
+        // Velocity drive: ω₂·s/(s² + (ω₂/Q₂)s + ω₂²)·U = ṗ/ω₂.
+        let velocity = s[4] / self.w;
+        self.gain_force * (s[0] - s[2])
+            + self.gain_static * s[2]
+            + self.gain_base * base
+            + self.gain_velocity * velocity
     }
 }
 
