@@ -513,6 +513,11 @@ struct DiveState<T> {
     ramp_from: u32,
     estimate_from: u32,
     readout_from: u32,
+    /// `ramp_from − readout_from` with blocks, 0 with blocks of one: the read-out's steady
+    /// stretch `readout_from ≤ t < ramp_from`, where a good sample estimates, is read out
+    /// and does not ramp, tested as one unsigned comparison (`t − readout_from < len`)
+    /// instead of three (the estimating sample, the read-out, the ramp-out).
+    readout_len: u32,
     u_cmd: T,
     u_safe: T,
     approach_from: T,
@@ -800,6 +805,7 @@ impl<T: SineTable> Controller<T> {
             ramp_from: 0,
             estimate_from: 0,
             readout_from: 0,
+            readout_len: 0,
             u_cmd: u,
             u_safe: u,
             approach_from: u,
@@ -1349,17 +1355,15 @@ impl<T: SineTable> Controller<T> {
     /// estimating sample (meaningless for the others).
     #[inline(always)]
     fn feed(&mut self, sink: &mut impl SampleSink<T>, z: T, r: T, flags: u32) -> u32 {
-        let x = Sample {
-            z,
-            u: self.u,
-            r,
-            flags,
-        };
         if self.now.last > 0 {
-            sink.push(x);
-            self.block_n = self.block_n.wrapping_add(1);
-            status::ESTIMATING | self.adopted
+            self.feed_block(sink, z, r, flags)
         } else {
+            let x = Sample {
+                z,
+                u: self.u,
+                r,
+                flags,
+            };
             let Some((w, phi)) = self.task.feed(&x) else {
                 return 0;
             };
@@ -1375,6 +1379,19 @@ impl<T: SineTable> Controller<T> {
             };
             status::ESTIMATING | f
         }
+    }
+
+    /// [`Self::feed`] with blocks (`now.last` > 0): the sample to the sink.
+    #[inline(always)]
+    fn feed_block(&mut self, sink: &mut impl SampleSink<T>, z: T, r: T, flags: u32) -> u32 {
+        sink.push(Sample {
+            z,
+            u: self.u,
+            r,
+            flags,
+        });
+        self.block_n = self.block_n.wrapping_add(1);
+        status::ESTIMATING | self.adopted
     }
 
     /// The lowered base during an approach; `None` when the travel limit is reached.
@@ -1463,6 +1480,17 @@ impl<T: SineTable> Controller<T> {
                 *st |= status::CONTACT;
                 if self.dive_force_limit(d, &mut u, st) {
                     self.dive.u_cmd = u;
+                    return u + self.exc.next(&self.p.dive.exc);
+                }
+                if input_ok && t.wrapping_sub(self.dive.readout_from) < self.dive.readout_len {
+                    // The read-out's steady stretch with blocks (see `DiveState::readout_len`):
+                    // the path below for a good sample with estimate_from ≤ readout_from ≤ t
+                    // < ramp_from and `now.last` > 0, its tests known. U is `u_cmd` as it was.
+                    let f = self.feed_block(sink, z, self.dive.r, SAMPLE_EST);
+                    *fed = true;
+                    *st |= f | status::READOUT;
+                    let v = [T::ZERO, T::ZERO, T::ZERO, self.dive.h - z];
+                    self.dive.acc.add_held::<3>(v, f);
                     return u + self.exc.next(&self.p.dive.exc);
                 }
                 let estimating = input_ok && t >= self.dive.estimate_from;
@@ -1568,6 +1596,14 @@ impl<T: SineTable> Controller<T> {
         self.dive.ramp_from = self.dive.dwell_end.saturating_sub(p.ramp_samples);
         self.dive.estimate_from = estimate_from;
         self.dive.readout_from = readout_from.max(estimate_from);
+        // readout_from ≤ ramp_from: end − ramp − readout ≤ dwell_end − ramp, and
+        // estimate_from ≤ dwell_end − ramp − readout. The mode (and with it `now.last`)
+        // cannot change within a dwell: a command leaves the phase.
+        self.dive.readout_len = if self.now.last > 0 {
+            self.dive.ramp_from - self.dive.readout_from
+        } else {
+            0
+        };
         self.dive.acc.clear();
         self.dive.z0 = self.dive.h - p.indent;
         self.dive.r = match p.regressor {
