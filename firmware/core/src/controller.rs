@@ -396,6 +396,9 @@ struct ModeNow<T> {
     /// The input check's `spike` and `hold` ([`GuardParams`]).
     spike: T,
     hold: u32,
+    /// SVE with blocks and the decoupled regressor: its passes take the path whose tests of
+    /// the regressor and the block length are known (`Controller::sve_contact`).
+    sve_fast: bool,
 }
 
 const BITS: FaultBits = FaultBits {
@@ -849,6 +852,7 @@ impl<T: SineTable> Controller<T> {
             last: p.dec_dive.saturating_sub(1),
             spike: p.guard_dive.spike,
             hold: p.guard_dive.hold,
+            sve_fast: false,
         };
         let task = EstimatorTask::new(
             TaskParams {
@@ -1085,6 +1089,9 @@ impl<T: SineTable> Controller<T> {
             last: dec.saturating_sub(1),
             spike: gp.spike,
             hold: gp.hold,
+            sve_fast: mode == Some(Mode::Sve)
+                && dec > 1
+                && matches!(self.p.sve.regressor, SveRegressor::Decoupled),
         };
     }
 
@@ -1206,7 +1213,9 @@ impl<T: SineTable> Controller<T> {
         let mut st = 0u32;
         // Input: out-of-range, non-finite and spiking readings are replaced by the last good
         // tip position, and the estimator waits (see `crate::guard`).
-        let ModeNow { last, spike, hold } = self.now;
+        let ModeNow {
+            last, spike, hold, ..
+        } = self.now;
         let input = self
             .guard
             .input_with(spike, hold, d_nm, self.u, self.p.d_max, &BITS);
@@ -1738,85 +1747,11 @@ impl<T: SineTable> Controller<T> {
                 }
                 self.sve.u_cmd
             }
+            Phase::Forward | Phase::Backward if self.now.sve_fast => {
+                self.sve_contact::<true>(t, d, z, input_ok, st, sink, fed)
+            }
             Phase::Settle | Phase::Forward | Phase::Backward | Phase::Turn => {
-                // The contact detector's low-pass keeps running: it gives the slow force. (Its
-                // state is the contact confirmed at the approach, latched until the next move.)
-                self.contact.lowpass(&self.p.contact, d);
-                let force = self.p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
-                self.sve.force_slow += self.p.force_slow_weight * (force - self.sve.force_slow);
-                if self.sve.lost {
-                    return self.sve_reapproach(t, z, st);
-                }
-                *st |= status::CONTACT;
-                if force > self.p.guard_sve.force_max {
-                    // Clear of the surface at once (the indentation and the clearance), then
-                    // come back down while the scan goes on.
-                    *st |= status::FORCE_LIMIT;
-                    self.exc.silence();
-                    let k = match self.p.sve.regressor {
-                        SveRegressor::Decoupled => self.theta2[1],
-                        SveRegressor::Paper => self.theta3[1],
-                    };
-                    // Up by the cantilever's bend and the indentation (springs in series), and
-                    // the clearance.
-                    self.sve.u_cmd += force / self.p.reg.stiffness + force / k + self.p.clearance;
-                    self.guard.reprime();
-                    self.sve_lose_surface();
-                    return self.sve.u_cmd;
-                }
-                if self.guard.surface_lost(
-                    &self.p.guard_sve,
-                    // Not while settling: the depth is still being reached.
-                    self.phase != Phase::Settle && self.sve.force_slow < self.p.lost_force,
-                ) {
-                    *st |= status::CONTACT_LOST;
-                    self.sve_lose_surface();
-                }
-                let mut f = 0;
-                // θ̂₂ ≥ k_min > 0 by projection, so the divisions are safe.
-                let (th, h_hat, depth) = match self.p.sve.regressor {
-                    SveRegressor::Decoupled => {
-                        // The task's high-passes run every sample, so their state stays
-                        // continuous.
-                        let flags = if input_ok {
-                            SAMPLE_HP | SAMPLE_EST
-                        } else {
-                            SAMPLE_HP
-                        };
-                        let fe = self.feed(sink, z, self.sve.z0, flags);
-                        if input_ok {
-                            f = fe;
-                        }
-                        let th = self.theta2;
-                        let depth = force / th[1];
-                        // The height from Z itself (the prefiltered Z/Λ is the task's): the
-                        // pixel's mean is the same but for the tones' residue.
-                        ([th[0], th[1], T::ZERO], z + depth, depth)
-                    }
-                    SveRegressor::Paper => {
-                        let fe =
-                            self.feed(sink, z, self.sve.z0, if input_ok { SAMPLE_EST } else { 0 });
-                        if input_ok {
-                            f = fe;
-                        }
-                        let th = self.theta3;
-                        let h = self.sve.z0 + th[2] / th[1];
-                        (th, h, h - z)
-                    }
-                };
-                *fed = true;
-                let (u_d, sat) = self
-                    .depth
-                    .update(&self.p.sve.depth, self.p.sve.depth_eff - depth);
-                if sat {
-                    f |= status::DEPTH_SATURATED;
-                }
-                *st |= f;
-                self.sve.u_cmd = u_d;
-                if self.sve_sequence(t, [th[0], th[1], h_hat, depth], f) {
-                    *st |= status::READOUT;
-                }
-                u_d + self.exc.next(&self.p.sve.exc)
+                self.sve_contact::<false>(t, d, z, input_ok, st, sink, fed)
             }
             Phase::Retract => {
                 let u = self.sve.u_cmd + self.p.retract_step;
@@ -1830,6 +1765,106 @@ impl<T: SineTable> Controller<T> {
             }
             _ => self.sve.u_cmd,
         }
+    }
+
+    /// One SVE sample in contact (settle, the passes, the turn). `FAST`: a pass (forward or
+    /// backward) with blocks and the decoupled regressor ([`ModeNow::sve_fast`]), whose
+    /// tests of the phase, the regressor and the block length are known; the same
+    /// operations on the same values as the general path.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn sve_contact<const FAST: bool>(
+        &mut self,
+        t: u32,
+        d: T,
+        z: T,
+        input_ok: bool,
+        st: &mut u32,
+        sink: &mut impl SampleSink<T>,
+        fed: &mut bool,
+    ) -> T {
+        // The contact detector's low-pass keeps running: it gives the slow force. (Its
+        // state is the contact confirmed at the approach, latched until the next move.)
+        self.contact.lowpass(&self.p.contact, d);
+        let force = self.p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
+        self.sve.force_slow += self.p.force_slow_weight * (force - self.sve.force_slow);
+        if self.sve.lost {
+            return self.sve_reapproach(t, z, st);
+        }
+        *st |= status::CONTACT;
+        if force > self.p.guard_sve.force_max {
+            // Clear of the surface at once (the indentation and the clearance), then
+            // come back down while the scan goes on.
+            *st |= status::FORCE_LIMIT;
+            self.exc.silence();
+            let k = match self.p.sve.regressor {
+                SveRegressor::Decoupled => self.theta2[1],
+                SveRegressor::Paper => self.theta3[1],
+            };
+            // Up by the cantilever's bend and the indentation (springs in series), and
+            // the clearance.
+            self.sve.u_cmd += force / self.p.reg.stiffness + force / k + self.p.clearance;
+            self.guard.reprime();
+            self.sve_lose_surface();
+            return self.sve.u_cmd;
+        }
+        if self.guard.surface_lost(
+            &self.p.guard_sve,
+            // Not while settling: the depth is still being reached.
+            (FAST || self.phase != Phase::Settle) && self.sve.force_slow < self.p.lost_force,
+        ) {
+            *st |= status::CONTACT_LOST;
+            self.sve_lose_surface();
+        }
+        let mut f = 0;
+        // θ̂₂ ≥ k_min > 0 by projection, so the divisions are safe.
+        let decoupled = FAST || matches!(self.p.sve.regressor, SveRegressor::Decoupled);
+        let (th, h_hat, depth) = match decoupled {
+            true => {
+                // The task's high-passes run every sample, so their state stays
+                // continuous.
+                let flags = if input_ok {
+                    SAMPLE_HP | SAMPLE_EST
+                } else {
+                    SAMPLE_HP
+                };
+                let fe = if FAST {
+                    self.feed_block(sink, z, self.sve.z0, flags)
+                } else {
+                    self.feed(sink, z, self.sve.z0, flags)
+                };
+                if input_ok {
+                    f = fe;
+                }
+                let th = self.theta2;
+                let depth = force / th[1];
+                // The height from Z itself (the prefiltered Z/Λ is the task's): the
+                // pixel's mean is the same but for the tones' residue.
+                ([th[0], th[1], T::ZERO], z + depth, depth)
+            }
+            false => {
+                let fe = self.feed(sink, z, self.sve.z0, if input_ok { SAMPLE_EST } else { 0 });
+                if input_ok {
+                    f = fe;
+                }
+                let th = self.theta3;
+                let h = self.sve.z0 + th[2] / th[1];
+                (th, h, h - z)
+            }
+        };
+        *fed = true;
+        let (u_d, sat) = self
+            .depth
+            .update(&self.p.sve.depth, self.p.sve.depth_eff - depth);
+        if sat {
+            f |= status::DEPTH_SATURATED;
+        }
+        *st |= f;
+        self.sve.u_cmd = u_d;
+        if self.sve_sequence::<FAST>(t, [th[0], th[1], h_hat, depth], f) {
+            *st |= status::READOUT;
+        }
+        u_d + self.exc.next(&self.p.sve.exc)
     }
 
     /// The surface is gone (a pit, the force limit): excitation out, estimator and depth
@@ -1875,7 +1910,7 @@ impl<T: SineTable> Controller<T> {
             SveRegressor::Paper => (th3[0], th3[1]),
         };
         let h = z;
-        if self.sve_sequence(t, [c, k, h, T::ZERO], status::CONTACT_LOST) {
+        if self.sve_sequence::<false>(t, [c, k, h, T::ZERO], status::CONTACT_LOST) {
             *st |= status::READOUT;
         }
         self.sve.u_cmd + self.exc.next(&self.p.sve.exc)
@@ -1884,16 +1919,18 @@ impl<T: SineTable> Controller<T> {
     /// The raster: settle, then forward, backward, turn per line; pixel bins along the way.
     #[inline(always)]
     /// Returns true when the sample went into a pixel.
-    fn sve_sequence(&mut self, t: u32, v: [T; 4], flags: u32) -> bool {
+    fn sve_sequence<const FAST: bool>(&mut self, t: u32, v: [T; 4], flags: u32) -> bool {
         let mut read = false;
-        match self.phase {
+        // FAST: a pass (see `sve_contact`).
+        let phase = if FAST { Phase::Forward } else { self.phase };
+        match phase {
             Phase::Settle if t >= self.p.sve.settle_samples => self.begin_line(true),
             Phase::Forward | Phase::Backward => {
                 let forward = self.phase == Phase::Forward;
                 let f = T::from_i32(t as i32) * self.p.sve.inv_half;
                 let x = self.sve.x_from + self.sve.x_span * f;
                 self.set_x_same_y(x);
-                if self.now.last > 0 {
+                if FAST || self.now.last > 0 {
                     self.sve.acc.add_held::<2>(v, flags);
                 } else {
                     self.sve.acc.add(v, flags);
