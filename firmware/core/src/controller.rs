@@ -460,6 +460,16 @@ impl<T: crate::Real> Accumulator<T> {
         self.flags |= flags;
     }
 
+    /// [`Self::add_held`] once samples have been added (the base set) and `flags` are in
+    /// the sums' flags already.
+    #[inline(always)]
+    fn add_started<const L: usize>(&mut self, v: [T; 4]) {
+        for i in L.min(4)..4 {
+            self.sum[i] += v[i] - self.base[i];
+        }
+        self.pending += 1;
+    }
+
     /// Samples added.
     #[inline(always)]
     fn count(&self) -> u32 {
@@ -516,11 +526,14 @@ struct DiveState<T> {
     ramp_from: u32,
     estimate_from: u32,
     readout_from: u32,
-    /// `ramp_from − readout_from` with blocks, 0 with blocks of one: the read-out's steady
-    /// stretch `readout_from ≤ t < ramp_from`, where a good sample estimates, is read out
-    /// and does not ramp, tested as one unsigned comparison (`t − readout_from < len`)
-    /// instead of three (the estimating sample, the read-out, the ramp-out).
-    readout_len: u32,
+    /// The read-out's steady stretch with blocks, `fast_from ≤ t < fast_from + fast_len`:
+    /// from the sample after the read-out's first (its sums started, their base set and
+    /// `ESTIMATING` in their flags) to `ramp_from`, where a good sample estimates, is read out
+    /// and does not ramp. Tested as one unsigned comparison (`t − fast_from < fast_len`)
+    /// instead of three (the estimating sample, the read-out, the ramp-out) and the sums'
+    /// start; empty (`fast_len` 0) until the read-out's first sample and with blocks of one.
+    fast_from: u32,
+    fast_len: u32,
     u_cmd: T,
     u_safe: T,
     approach_from: T,
@@ -808,7 +821,8 @@ impl<T: SineTable> Controller<T> {
             ramp_from: 0,
             estimate_from: 0,
             readout_from: 0,
-            readout_len: 0,
+            fast_from: 0,
+            fast_len: 0,
             u_cmd: u,
             u_safe: u,
             approach_from: u,
@@ -1491,15 +1505,19 @@ impl<T: SineTable> Controller<T> {
                     self.dive.u_cmd = u;
                     return u + self.exc.next(&self.p.dive.exc);
                 }
-                if input_ok && t.wrapping_sub(self.dive.readout_from) < self.dive.readout_len {
-                    // The read-out's steady stretch with blocks (see `DiveState::readout_len`):
-                    // the path below for a good sample with estimate_from ≤ readout_from ≤ t
+                if input_ok && t.wrapping_sub(self.dive.fast_from) < self.dive.fast_len {
+                    // The read-out's steady stretch with blocks (see `DiveState::fast_from`):
+                    // the path below for a good sample with estimate_from ≤ readout_from < t
                     // < ramp_from and `now.last` > 0, its tests known. U is `u_cmd` as it was.
                     let f = self.feed_block(sink, z, self.dive.r, SAMPLE_EST);
                     *fed = true;
                     *st |= f | status::READOUT;
                     let v = [T::ZERO, T::ZERO, T::ZERO, self.dive.h - z];
-                    self.dive.acc.add_held::<3>(v, f);
+                    self.dive.acc.add_started::<3>(v);
+                    // f is ESTIMATING (in the sums' flags already) and the adopted bits.
+                    if self.adopted != 0 {
+                        self.dive.acc.flags |= self.adopted;
+                    }
                     return u + self.exc.next(&self.p.dive.exc);
                 }
                 let estimating = input_ok && t >= self.dive.estimate_from;
@@ -1525,6 +1543,11 @@ impl<T: SineTable> Controller<T> {
                             let v = [T::ZERO, T::ZERO, T::ZERO, h - z];
                             self.dive.acc.add_held::<3>(v, f);
                             *st |= status::READOUT;
+                            // The sums have begun: the steady stretch from the next sample
+                            // (empty from the ramp-out on).
+                            self.dive.fast_from = t.wrapping_add(1);
+                            self.dive.fast_len =
+                                self.dive.ramp_from.saturating_sub(t).saturating_sub(1);
                         }
                     } else {
                         if f & status::EST_DIVERGED != 0 {
@@ -1605,14 +1628,8 @@ impl<T: SineTable> Controller<T> {
         self.dive.ramp_from = self.dive.dwell_end.saturating_sub(p.ramp_samples);
         self.dive.estimate_from = estimate_from;
         self.dive.readout_from = readout_from.max(estimate_from);
-        // readout_from ≤ ramp_from: end − ramp − readout ≤ dwell_end − ramp, and
-        // estimate_from ≤ dwell_end − ramp − readout. The mode (and with it `now.last`)
-        // cannot change within a dwell: a command leaves the phase.
-        self.dive.readout_len = if self.now.last > 0 {
-            self.dive.ramp_from - self.dive.readout_from
-        } else {
-            0
-        };
+        // The steady stretch opens with the read-out's first sample.
+        self.dive.fast_len = 0;
         self.dive.acc.clear();
         self.dive.z0 = self.dive.h - p.indent;
         self.dive.r = match p.regressor {
