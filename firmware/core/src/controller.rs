@@ -396,8 +396,13 @@ struct ModeNow<T> {
     /// The input check's `spike` and `hold` ([`GuardParams`]).
     spike: T,
     hold: u32,
-    /// SVE with blocks and the decoupled regressor: its passes take the path whose tests of
-    /// the regressor and the block length are known (`Controller::sve_contact`).
+    /// SVE with blocks and the decoupled regressor.
+    sve_blocks: bool,
+    /// `sve_blocks`, the surface held and the pixel's sums begun (their base set): a pass
+    /// takes the path whose tests of the regressor, the block length, the surface and the
+    /// sums' start are known (`Controller::sve_contact`). Set by a pass's sample that adds
+    /// to the sums on the general path; cleared where the sums are (a pixel's end, a pass's
+    /// start), where the surface is lost, and with the mode.
     sve_fast: bool,
 }
 
@@ -680,7 +685,8 @@ impl<T: SineTable> Controller<T> {
                 spike: t(spike_m * nm),
                 hold: samples(f.hold_s, fs),
                 force_max: t(f.force_max_n / units::FORCE),
-                lost: samples(f.lost_s, fs),
+                // `samples` is ≥ 1.
+                lost: NonZeroU32::new(samples(f.lost_s, fs)).unwrap_or(NonZeroU32::MIN),
                 diverge: (f.diverge_memories * updates_per_memory).max(1.0) as u32,
                 residual_ratio: t(f.residual_ratio),
                 // The running means of |e| and |w| remember one estimator memory.
@@ -866,6 +872,7 @@ impl<T: SineTable> Controller<T> {
             last: p.dec_dive.saturating_sub(1),
             spike: p.guard_dive.spike,
             hold: p.guard_dive.hold,
+            sve_blocks: false,
             sve_fast: false,
         };
         let task = EstimatorTask::new(
@@ -1103,9 +1110,10 @@ impl<T: SineTable> Controller<T> {
             last: dec.saturating_sub(1),
             spike: gp.spike,
             hold: gp.hold,
-            sve_fast: mode == Some(Mode::Sve)
+            sve_blocks: mode == Some(Mode::Sve)
                 && dec > 1
                 && matches!(self.p.sve.regressor, SveRegressor::Decoupled),
+            sve_fast: false,
         };
     }
 
@@ -1785,9 +1793,10 @@ impl<T: SineTable> Controller<T> {
     }
 
     /// One SVE sample in contact (settle, the passes, the turn). `FAST`: a pass (forward or
-    /// backward) with blocks and the decoupled regressor ([`ModeNow::sve_fast`]), whose
-    /// tests of the phase, the regressor and the block length are known; the same
-    /// operations on the same values as the general path.
+    /// backward) with blocks and the decoupled regressor, the surface held and the pixel's
+    /// sums begun ([`ModeNow::sve_fast`]), whose tests of the phase, the regressor, the block
+    /// length, the surface and the sums' start are known; the same operations on the same
+    /// values as the general path.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn sve_contact<const FAST: bool>(
@@ -1805,7 +1814,7 @@ impl<T: SineTable> Controller<T> {
         self.contact.lowpass(&self.p.contact, d);
         let force = self.p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
         self.sve.force_slow += self.p.force_slow_weight * (force - self.sve.force_slow);
-        if self.sve.lost {
+        if !FAST && self.sve.lost {
             return self.sve_reapproach(t, z, st);
         }
         *st |= status::CONTACT;
@@ -1888,6 +1897,7 @@ impl<T: SineTable> Controller<T> {
     /// integrator frozen, re-approach from here while the scan goes on.
     fn sve_lose_surface(&mut self) {
         self.sve.lost = true;
+        self.now.sve_fast = false;
         self.sve.left = false;
         self.sve.reapproach_from = self.sve.u_cmd;
         self.exc.set_on(false);
@@ -1947,8 +1957,14 @@ impl<T: SineTable> Controller<T> {
                 let f = T::from_i32(t as i32) * self.p.sve.inv_half;
                 let x = self.sve.x_from + self.sve.x_span * f;
                 self.set_x_same_y(x);
-                if FAST || self.now.last > 0 {
+                if FAST {
+                    self.sve.acc.add_started::<2>(v);
+                    self.sve.acc.flags |= flags;
+                } else if self.now.last > 0 {
                     self.sve.acc.add_held::<2>(v, flags);
+                    // The sums have begun: the next samples of the pass can take the fast
+                    // path, while the surface holds.
+                    self.now.sve_fast = self.now.sve_blocks && !self.sve.lost;
                 } else {
                     self.sve.acc.add(v, flags);
                 }
@@ -1999,6 +2015,7 @@ impl<T: SineTable> Controller<T> {
         self.sve.pixel = 0;
         self.sve.next_boundary = (p.half_samples as u64 / NonZeroU64::from(p.pixels)) as u32;
         self.sve.acc.clear();
+        self.now.sve_fast = false;
         self.sve.x_acc = T::ZERO;
         (self.sve.x_from, self.sve.x_span) = if forward {
             (p.x0, p.x1 - p.x0)
@@ -2039,6 +2056,7 @@ impl<T: SineTable> Controller<T> {
         };
         s.acc.clear();
         s.x_acc = T::ZERO;
+        self.now.sve_fast = false;
         self.set_record(Record::Pixel(rec));
     }
 }

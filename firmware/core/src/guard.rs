@@ -45,6 +45,7 @@
 
 use crate::estimator::UpdateInfo;
 use crate::real::Real;
+use core::num::NonZeroU32;
 
 /// Constants of the fault handling (internal units).
 #[derive(Clone, Copy, Debug)]
@@ -55,8 +56,9 @@ pub struct GuardParams<T> {
     pub hold: u32,
     /// Static force limit (nN).
     pub force_max: T,
-    /// Samples without contact force before SVE declares the surface lost.
-    pub lost: u32,
+    /// Samples without contact force before SVE declares the surface lost (≥ 1: a sample
+    /// with force is never a lost surface, and the check says so without a comparison).
+    pub lost: NonZeroU32,
     /// Consecutive updates before a divergence sign triggers the reset.
     pub diverge: u32,
     /// Residual-to-measurement ratio beyond which the model explains nothing.
@@ -222,8 +224,9 @@ impl<T: Real> Guard<T> {
             self.lost_count = self.lost_count.saturating_add(1);
         } else {
             self.lost_count = 0;
+            return false;
         }
-        self.lost_count >= p.lost
+        self.lost_count >= p.lost.get()
     }
 
     /// Reset the surface check (contact found again).
@@ -460,7 +463,7 @@ mod tests {
             spike: 50.0,
             hold: 10,
             force_max: 100.0,
-            lost: 5,
+            lost: NonZeroU32::new(5).unwrap(),
             diverge: 20,
             residual_ratio: 0.3,
             mean_weight: 0.1,
