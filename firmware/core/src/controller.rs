@@ -539,6 +539,10 @@ struct DiveState<T> {
     /// start; empty (`fast_len` 0) until the read-out's first sample and with blocks of one.
     fast_from: u32,
     fast_len: u32,
+    /// `readout_from − estimate_from` with blocks, 0 with blocks of one: the estimating
+    /// stretch before the read-out, `estimate_from ≤ t < readout_from` (≤ `ramp_from`), where
+    /// a good sample estimates only, tested as one comparison.
+    estimate_len: u32,
     u_cmd: T,
     u_safe: T,
     approach_from: T,
@@ -829,6 +833,7 @@ impl<T: SineTable> Controller<T> {
             readout_from: 0,
             fast_from: 0,
             fast_len: 0,
+            estimate_len: 0,
             u_cmd: u,
             u_safe: u,
             approach_from: u,
@@ -1528,6 +1533,13 @@ impl<T: SineTable> Controller<T> {
                     }
                     return u + self.exc.next(&self.p.dive.exc);
                 }
+                if input_ok && t.wrapping_sub(self.dive.estimate_from) < self.dive.estimate_len {
+                    // The estimating stretch before the read-out, with blocks (see
+                    // `DiveState::estimate_len`): the path below with its tests known.
+                    *st |= self.feed_block(sink, z, self.dive.r, SAMPLE_EST);
+                    *fed = true;
+                    return u + self.exc.next(&self.p.dive.exc);
+                }
                 let estimating = input_ok && t >= self.dive.estimate_from;
                 let h = self.dive.h;
                 // The regressor's reference (`DiveState::r`, fixed for the tap).
@@ -1638,6 +1650,14 @@ impl<T: SineTable> Controller<T> {
         self.dive.readout_from = readout_from.max(estimate_from);
         // The steady stretch opens with the read-out's first sample.
         self.dive.fast_len = 0;
+        // readout_from ≤ ramp_from: end − ramp − readout ≤ dwell_end − ramp, and
+        // estimate_from ≤ dwell_end − ramp − readout. The mode (and with it `now.last`)
+        // cannot change within a dwell: a command leaves the phase.
+        self.dive.estimate_len = if self.now.last > 0 {
+            self.dive.readout_from - estimate_from
+        } else {
+            0
+        };
         self.dive.acc.clear();
         self.dive.z0 = self.dive.h - p.indent;
         self.dive.r = match p.regressor {
