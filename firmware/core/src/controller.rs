@@ -1081,12 +1081,24 @@ impl<T: SineTable> Controller<T> {
         self.task
     }
 
-    /// True when the next step closes a block: adopt the result of the block before
-    /// ([`Self::deliver`]) first. Always false with blocks of one sample.
+    /// The block clock, one tick per loop sample: call exactly once before each
+    /// [`Self::step_loop`] (as [`Self::step_internal`] does). True when that step closes a
+    /// block: adopt the result of the block before ([`Self::deliver`]) and take the block
+    /// ([`Self::close_block`]) first. Always false with blocks of one sample. (The step
+    /// advanced the clock itself until round 5; the caller's test of it read the same two
+    /// words again.)
     #[inline(always)]
-    pub fn block_due(&self) -> bool {
+    pub fn block_due(&mut self) -> bool {
         let last = self.now.last;
-        last > 0 && self.tick >= last
+        let tick = self.tick;
+        // A block closes at the first sample of the next.
+        if tick >= last {
+            self.tick = 0;
+            last > 0
+        } else {
+            self.tick = tick + 1;
+            false
+        }
     }
 
     /// The sequencer's phase, and the status word's phase bits with it.
@@ -1240,22 +1252,14 @@ impl<T: SineTable> Controller<T> {
         let mut st = 0u32;
         // Input: out-of-range, non-finite and spiking readings are replaced by the last good
         // tip position, and the estimator waits (see `crate::guard`).
-        let ModeNow {
-            last, spike, hold, ..
-        } = self.now;
+        let ModeNow { spike, hold, .. } = self.now;
         let input = self
             .guard
             .input_with(spike, hold, d_nm, self.u, self.p.d_max, &BITS);
         st |= input.flags;
         let d = input.d;
         let input_ok = input.ok;
-        // The block clock: a block closes at the first sample of the next (the caller has
-        // taken it, `close_block`, before this step).
-        if self.tick >= last {
-            self.tick = 0;
-        } else {
-            self.tick += 1;
-        }
+        // The block clock has ticked for this step (`block_due`, the caller's).
         let z = self.u - d;
         self.z = z;
 
