@@ -282,6 +282,9 @@ struct Dac<T> {
     inv_lsb: T,
     code_min: i32,
     code_max: i32,
+    /// `code_max − code_min`: a code is in range when `code − code_min`, as unsigned, is at
+    /// most this (one comparison).
+    code_span: u32,
 }
 
 impl<T: crate::Real> Dac<T> {
@@ -294,6 +297,7 @@ impl<T: crate::Real> Dac<T> {
             inv_lsb: T::from_f64(1.0 / lsb),
             code_min: -half as i32,
             code_max: (half - 1) as i32,
+            code_span: (2 * half - 1) as u32,
         }
     }
 
@@ -301,6 +305,11 @@ impl<T: crate::Real> Dac<T> {
     #[inline(always)]
     fn quantize(&self, v: T) -> (i32, T, bool) {
         let raw = ((v - self.mid) * self.inv_lsb).round_i32();
+        // In range, the usual case: one unsigned comparison instead of the clamp's two and
+        // the clamped test (the same code and flag).
+        if (raw.wrapping_sub(self.code_min) as u32) <= self.code_span {
+            return (raw, self.mid + T::from_i32(raw) * self.lsb, false);
+        }
         let code = if raw > self.code_max {
             self.code_max
         } else if raw < self.code_min {
