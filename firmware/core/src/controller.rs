@@ -599,6 +599,20 @@ struct SveState<T> {
     left: bool,
 }
 
+/// The usual paths of a sample ([`Controller::update_hot`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+enum Hot {
+    /// Through the mode's and the phase's dispatch.
+    None,
+    /// No mode: U held.
+    Stopped,
+    /// DIVE, dwelling.
+    DiveDwell,
+    /// SVE, a pass on its fast path (`ModeNow::sve_fast`).
+    SvePass,
+}
+
 /// The identification core's per-sample state machine.
 ///
 /// `repr(C)` keeps the fields in this order: the per-sample state first, then the constants,
@@ -611,6 +625,9 @@ struct SveState<T> {
 pub struct Controller<T> {
     mode: Option<Mode>,
     phase: Phase,
+    /// The sample's usual path, kept with the mode, the phase and `ModeNow::sve_fast`
+    /// ([`Self::update_hot`]): one byte dispatches it where the mode and the phase took two.
+    hot: Hot,
     /// `set_x_same_y` would leave y as it is: y and its code are `y_quantized`'s value and
     /// code, and quantising that value gives it back. Cleared where y is set (`set_xy`).
     y_settled: bool,
@@ -926,6 +943,7 @@ impl<T: SineTable> Controller<T> {
             mode: None,
             now,
             phase: Phase::Idle,
+            hot: Hot::Stopped,
             status_hold: (Phase::Idle as u32) << status::PHASE_SHIFT,
             y_settled: false,
             u,
@@ -1116,6 +1134,28 @@ impl<T: SineTable> Controller<T> {
         self.phase = p;
         self.status_hold = (self.status_hold & !(0xFF << status::PHASE_SHIFT))
             | ((p as u32) << status::PHASE_SHIFT);
+        self.update_hot();
+    }
+
+    /// `ModeNow::sve_fast`, and the usual path with it.
+    #[inline(always)]
+    fn set_sve_fast(&mut self, fast: bool) {
+        self.now.sve_fast = fast;
+        self.update_hot();
+    }
+
+    /// The usual path from the mode, the phase and `ModeNow::sve_fast`: where any of them
+    /// changes.
+    #[inline(always)]
+    fn update_hot(&mut self) {
+        self.hot = match (self.mode, self.phase) {
+            (Some(Mode::Dive), Phase::Dwell) => Hot::DiveDwell,
+            (Some(Mode::Sve), Phase::Forward | Phase::Backward) if self.now.sve_fast => {
+                Hot::SvePass
+            }
+            (None, _) => Hot::Stopped,
+            _ => Hot::None,
+        };
     }
 
     /// A finished tap or pixel to take, and `RECORD_READY` with it.
@@ -1141,6 +1181,7 @@ impl<T: SineTable> Controller<T> {
                 && matches!(self.p.sve.regressor, SveRegressor::Decoupled),
             sve_fast: false,
         };
+        self.update_hot();
     }
 
     /// Closes the block handed over so far and gives its header to `send` (the firmware: a
@@ -1275,22 +1316,45 @@ impl<T: SineTable> Controller<T> {
         // While a mode runs, every sample goes to the estimator task (its prefilters need an
         // unbroken signal): from the mode's step with what to do with it, else here.
         let mut fed = false;
-        let u_next = match self.mode {
-            Some(Mode::Dive) => {
-                let u = self.dive_step(d, z, input_ok, &mut st, sink, &mut fed);
+        let u_next = match self.hot {
+            // The usual paths, dispatched by one byte (the same steps as through the mode's
+            // and the phase's below).
+            Hot::DiveDwell => {
+                self.dive.t = self.dive.t.saturating_add(1);
+                let t = self.dive.t;
+                let u = self.dive_dwell(t, d, z, input_ok, &mut st, sink, &mut fed);
                 if !fed {
                     self.feed(sink, z, T::ZERO, 0);
                 }
                 u
             }
-            Some(Mode::Sve) => {
-                let u = self.sve_step(d, z, input_ok, &mut st, sink, &mut fed);
+            Hot::SvePass => {
+                self.sve.t = self.sve.t.saturating_add(1);
+                let t = self.sve.t;
+                let u = self.sve_contact::<true>(t, d, z, input_ok, &mut st, sink, &mut fed);
                 if !fed {
                     self.feed(sink, z, T::ZERO, 0);
                 }
                 u
             }
-            None => self.u,
+            Hot::Stopped => self.u,
+            Hot::None => match self.mode {
+                Some(Mode::Dive) => {
+                    let u = self.dive_step(d, z, input_ok, &mut st, sink, &mut fed);
+                    if !fed {
+                        self.feed(sink, z, T::ZERO, 0);
+                    }
+                    u
+                }
+                Some(Mode::Sve) => {
+                    let u = self.sve_step(d, z, input_ok, &mut st, sink, &mut fed);
+                    if !fed {
+                        self.feed(sink, z, T::ZERO, 0);
+                    }
+                    u
+                }
+                None => self.u,
+            },
         };
         let (u_code, u, clamped) = self.p.u_dac.quantize(u_next);
         if clamped {
@@ -1525,82 +1589,7 @@ impl<T: SineTable> Controller<T> {
                     }
                 }
             }
-            Phase::Dwell => {
-                *st |= status::CONTACT;
-                if self.dive_force_limit(d, &mut u, st) {
-                    self.dive.u_cmd = u;
-                    return u + self.exc.next(&self.p.dive.exc);
-                }
-                if input_ok && t.wrapping_sub(self.dive.fast_from) < self.dive.fast_len {
-                    // The read-out's steady stretch with blocks (see `DiveState::fast_from`):
-                    // the path below for a good sample with estimate_from ≤ readout_from < t
-                    // < ramp_from and `now.last` > 0, its tests known. U is `u_cmd` as it was.
-                    let f = self.feed_block(sink, z, self.dive.r, SAMPLE_EST);
-                    *fed = true;
-                    *st |= f | status::READOUT;
-                    let v = [T::ZERO, T::ZERO, T::ZERO, self.dive.h - z];
-                    self.dive.acc.add_started::<3>(v);
-                    // f is ESTIMATING (in the sums' flags already) and the adopted bits.
-                    if self.adopted != 0 {
-                        self.dive.acc.flags |= self.adopted;
-                    }
-                    return u + self.exc.next(&self.p.dive.exc);
-                }
-                if input_ok && t.wrapping_sub(self.dive.estimate_from) < self.dive.estimate_len {
-                    // The estimating stretch before the read-out, with blocks (see
-                    // `DiveState::estimate_len`): the path below with its tests known.
-                    *st |= self.feed_block(sink, z, self.dive.r, SAMPLE_EST);
-                    *fed = true;
-                    return u + self.exc.next(&self.p.dive.exc);
-                }
-                let estimating = input_ok && t >= self.dive.estimate_from;
-                let h = self.dive.h;
-                // The regressor's reference (`DiveState::r`, fixed for the tap).
-                let f = self.feed(
-                    sink,
-                    z,
-                    self.dive.r,
-                    if estimating { SAMPLE_EST } else { 0 },
-                );
-                *fed = true;
-                if estimating {
-                    *st |= f;
-                    // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
-                    // The depth from Z itself: its mean over the read-out is that of Z/Λ
-                    // (unit DC gain) but for the filter's edges and the tones' residue.
-                    if self.now.last > 0 {
-                        // Blocks: f is ESTIMATING and the flags of a result adopted at this
-                        // sample, whose divergence `deliver` put into the tap's flags
-                        // already; the read-out's θ̂ entries come with `settle` per block.
-                        if t >= self.dive.readout_from {
-                            let v = [T::ZERO, T::ZERO, T::ZERO, h - z];
-                            self.dive.acc.add_held::<3>(v, f);
-                            *st |= status::READOUT;
-                            // The sums have begun: the steady stretch from the next sample
-                            // (empty from the ramp-out on).
-                            self.dive.fast_from = t.wrapping_add(1);
-                            self.dive.fast_len =
-                                self.dive.ramp_from.saturating_sub(t).saturating_sub(1);
-                        }
-                    } else {
-                        if f & status::EST_DIVERGED != 0 {
-                            self.dive.flags |= status::EST_DIVERGED;
-                        }
-                        if t >= self.dive.readout_from {
-                            let v = self.dive_theta();
-                            self.dive.acc.add([v[0], v[1], v[2], h - z], f);
-                            *st |= status::READOUT;
-                        }
-                    }
-                }
-                // t + ramp ≥ dwell_end; dwell_end ≥ ramp_from, so the end is inside.
-                if t >= self.dive.ramp_from {
-                    self.exc.set_on(false);
-                    if t >= self.dive.dwell_end {
-                        self.finish_tap(true);
-                    }
-                }
-            }
+            Phase::Dwell => return self.dive_dwell(t, d, z, input_ok, st, sink, fed),
             Phase::Retract => {
                 u += self.p.retract_step;
                 if u >= self.dive.u_safe {
@@ -1610,6 +1599,97 @@ impl<T: SineTable> Controller<T> {
             }
             Phase::Wait if t >= self.p.dive.tap_samples => self.next_tap(),
             _ => {}
+        }
+        self.dive.u_cmd = u;
+        u + self.exc.next(&self.p.dive.exc)
+    }
+
+    /// One DIVE dwell sample (`dive_step`'s phase, and the usual path `Hot::DiveDwell`).
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn dive_dwell(
+        &mut self,
+        t: u32,
+        d: T,
+        z: T,
+        input_ok: bool,
+        st: &mut u32,
+        sink: &mut impl SampleSink<T>,
+        fed: &mut bool,
+    ) -> T {
+        let mut u = self.dive.u_cmd;
+        *st |= status::CONTACT;
+        if self.dive_force_limit(d, &mut u, st) {
+            self.dive.u_cmd = u;
+            return u + self.exc.next(&self.p.dive.exc);
+        }
+        if input_ok && t.wrapping_sub(self.dive.fast_from) < self.dive.fast_len {
+            // The read-out's steady stretch with blocks (see `DiveState::fast_from`):
+            // the path below for a good sample with estimate_from ≤ readout_from < t
+            // < ramp_from and `now.last` > 0, its tests known. U is `u_cmd` as it was.
+            let f = self.feed_block(sink, z, self.dive.r, SAMPLE_EST);
+            *fed = true;
+            *st |= f | status::READOUT;
+            let v = [T::ZERO, T::ZERO, T::ZERO, self.dive.h - z];
+            self.dive.acc.add_started::<3>(v);
+            // f is ESTIMATING (in the sums' flags already) and the adopted bits.
+            if self.adopted != 0 {
+                self.dive.acc.flags |= self.adopted;
+            }
+            return u + self.exc.next(&self.p.dive.exc);
+        }
+        if input_ok && t.wrapping_sub(self.dive.estimate_from) < self.dive.estimate_len {
+            // The estimating stretch before the read-out, with blocks (see
+            // `DiveState::estimate_len`): the path below with its tests known.
+            *st |= self.feed_block(sink, z, self.dive.r, SAMPLE_EST);
+            *fed = true;
+            return u + self.exc.next(&self.p.dive.exc);
+        }
+        let estimating = input_ok && t >= self.dive.estimate_from;
+        let h = self.dive.h;
+        // The regressor's reference (`DiveState::r`, fixed for the tap).
+        let f = self.feed(
+            sink,
+            z,
+            self.dive.r,
+            if estimating { SAMPLE_EST } else { 0 },
+        );
+        *fed = true;
+        if estimating {
+            *st |= f;
+            // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
+            // The depth from Z itself: its mean over the read-out is that of Z/Λ
+            // (unit DC gain) but for the filter's edges and the tones' residue.
+            if self.now.last > 0 {
+                // Blocks: f is ESTIMATING and the flags of a result adopted at this
+                // sample, whose divergence `deliver` put into the tap's flags
+                // already; the read-out's θ̂ entries come with `settle` per block.
+                if t >= self.dive.readout_from {
+                    let v = [T::ZERO, T::ZERO, T::ZERO, h - z];
+                    self.dive.acc.add_held::<3>(v, f);
+                    *st |= status::READOUT;
+                    // The sums have begun: the steady stretch from the next sample
+                    // (empty from the ramp-out on).
+                    self.dive.fast_from = t.wrapping_add(1);
+                    self.dive.fast_len = self.dive.ramp_from.saturating_sub(t).saturating_sub(1);
+                }
+            } else {
+                if f & status::EST_DIVERGED != 0 {
+                    self.dive.flags |= status::EST_DIVERGED;
+                }
+                if t >= self.dive.readout_from {
+                    let v = self.dive_theta();
+                    self.dive.acc.add([v[0], v[1], v[2], h - z], f);
+                    *st |= status::READOUT;
+                }
+            }
+        }
+        // t + ramp ≥ dwell_end; dwell_end ≥ ramp_from, so the end is inside.
+        if t >= self.dive.ramp_from {
+            self.exc.set_on(false);
+            if t >= self.dive.dwell_end {
+                self.finish_tap(true);
+            }
         }
         self.dive.u_cmd = u;
         u + self.exc.next(&self.p.dive.exc)
@@ -1805,9 +1885,6 @@ impl<T: SineTable> Controller<T> {
                 }
                 self.sve.u_cmd
             }
-            Phase::Forward | Phase::Backward if self.now.sve_fast => {
-                self.sve_contact::<true>(t, d, z, input_ok, st, sink, fed)
-            }
             Phase::Settle | Phase::Forward | Phase::Backward | Phase::Turn => {
                 self.sve_contact::<false>(t, d, z, input_ok, st, sink, fed)
             }
@@ -1930,7 +2007,7 @@ impl<T: SineTable> Controller<T> {
     /// integrator frozen, re-approach from here while the scan goes on.
     fn sve_lose_surface(&mut self) {
         self.sve.lost = true;
-        self.now.sve_fast = false;
+        self.set_sve_fast(false);
         self.sve.left = false;
         self.sve.reapproach_from = self.sve.u_cmd;
         self.exc.set_on(false);
@@ -1997,7 +2074,7 @@ impl<T: SineTable> Controller<T> {
                     self.sve.acc.add_held::<2>(v, flags);
                     // The sums have begun: the next samples of the pass can take the fast
                     // path, while the surface holds.
-                    self.now.sve_fast = self.now.sve_blocks && !self.sve.lost;
+                    self.set_sve_fast(self.now.sve_blocks && !self.sve.lost);
                 } else {
                     self.sve.acc.add(v, flags);
                 }
@@ -2048,7 +2125,7 @@ impl<T: SineTable> Controller<T> {
         self.sve.pixel = 0;
         self.sve.next_boundary = (p.half_samples as u64 / NonZeroU64::from(p.pixels)) as u32;
         self.sve.acc.clear();
-        self.now.sve_fast = false;
+        self.set_sve_fast(false);
         self.sve.x_acc = T::ZERO;
         (self.sve.x_from, self.sve.x_span) = if forward {
             (p.x0, p.x1 - p.x0)
@@ -2089,7 +2166,7 @@ impl<T: SineTable> Controller<T> {
         };
         s.acc.clear();
         s.x_acc = T::ZERO;
-        self.now.sve_fast = false;
+        self.set_sve_fast(false);
         self.set_record(Record::Pixel(rec));
     }
 }
