@@ -407,11 +407,13 @@ struct ModeNow<T> {
     hold: u32,
     /// SVE with blocks and the decoupled regressor.
     sve_blocks: bool,
-    /// `sve_blocks`, the surface held and the pixel's sums begun (their base set): a pass
-    /// takes the path whose tests of the regressor, the block length, the surface and the
-    /// sums' start are known (`Controller::sve_contact`). Set by a pass's sample that adds
-    /// to the sums on the general path; cleared where the sums are (a pixel's end, a pass's
-    /// start), where the surface is lost, and with the mode.
+    /// `sve_blocks`, the surface held, the pixel's sums begun (their base set) and y settled
+    /// (`Controller::y_settled`): a pass takes the path whose tests of the regressor, the
+    /// block length, the surface, the sums' start and y's cache are known
+    /// (`Controller::sve_contact`). Set by a pass's sample that adds to the sums on the
+    /// general path; cleared where the sums are (a pixel's end, a pass's start: before any
+    /// `set_xy`, which only the move and the turn call), where the surface is lost, and with
+    /// the mode.
     sve_fast: bool,
 }
 
@@ -2066,7 +2068,14 @@ impl<T: SineTable> Controller<T> {
                 let forward = self.phase == Phase::Forward;
                 let f = T::from_i32(t as i32) * self.p.sve.inv_half;
                 let x = self.sve.x_from + self.sve.x_span * f;
-                self.set_x_same_y(x);
+                if FAST {
+                    // y is settled (`ModeNow::sve_fast`): `set_x_same_y` would store x only.
+                    let (xc, xv, _) = self.p.xy_dac.quantize(x);
+                    self.x = xv;
+                    self.x_code = xc;
+                } else {
+                    self.set_x_same_y(x);
+                }
                 if FAST {
                     self.sve.acc.add_started::<2>(v);
                     self.sve.acc.flags |= flags;
@@ -2074,7 +2083,7 @@ impl<T: SineTable> Controller<T> {
                     self.sve.acc.add_held::<2>(v, flags);
                     // The sums have begun: the next samples of the pass can take the fast
                     // path, while the surface holds.
-                    self.set_sve_fast(self.now.sve_blocks && !self.sve.lost);
+                    self.set_sve_fast(self.now.sve_blocks && !self.sve.lost && self.y_settled);
                 } else {
                     self.sve.acc.add(v, flags);
                 }
