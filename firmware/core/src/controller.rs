@@ -1183,6 +1183,9 @@ impl<T: SineTable> Controller<T> {
                 && matches!(self.p.sve.regressor, SveRegressor::Decoupled),
             sve_fast: false,
         };
+        // The input check's steady path keeps the last `spike` (`Guard::leave_steady`); the
+        // general path computes the same.
+        self.guard.leave_steady();
         self.update_hot();
     }
 

@@ -113,7 +113,8 @@ pub struct Input<T> {
 
 impl<T: Real> Guard<T> {
     /// Check one ADC reading `d` (internal units) with the base at `u` (the DAC value held
-    /// over the period that ends now); `d_max` is the ADC's full scale.
+    /// over the period that ends now); `d_max` is the ADC's full scale. Before a call with
+    /// another `p.spike` than the last, call [`Self::leave_steady`].
     #[inline(always)]
     pub fn input(
         &mut self,
@@ -127,7 +128,8 @@ impl<T: Real> Guard<T> {
     }
 
     /// [`Self::input`] with the two constants it uses, `spike` and `hold` of [`GuardParams`]
-    /// (the controller keeps the running mode's next to its per-sample state).
+    /// (the controller keeps the running mode's next to its per-sample state). Before a call
+    /// with another `spike` than the last, call [`Self::leave_steady`].
     #[inline(always)]
     pub fn input_with(
         &mut self,
@@ -148,7 +150,9 @@ impl<T: Real> Guard<T> {
                 // (z − z_good)/1 = z − z_good exactly (both finite: d in range, U a DAC value).
                 self.velocity = z - self.z_good;
                 self.z_good = z;
-                self.reach = spike;
+                // `reach = spike` is stored already: the path below stored this `spike` when it
+                // entered the steady path, and a caller that changes `spike` leaves the
+                // steady path first ([`Self::leave_steady`]).
                 return Input {
                     d,
                     ok: true,
@@ -203,6 +207,16 @@ impl<T: Real> Guard<T> {
             d: u - self.z_good,
             ok: false,
             flags: f,
+        }
+    }
+
+    /// Leave the steady path for the general one, which computes the same (call before
+    /// [`Self::input_with`] takes another `spike`: the steady path does not store it).
+    #[inline(always)]
+    pub fn leave_steady(&mut self) {
+        if self.steady {
+            self.predicted = self.z_good;
+            self.steady = false;
         }
     }
 
