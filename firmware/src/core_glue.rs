@@ -97,8 +97,9 @@ pub trait LoopCore {
     /// while a mode runs, the sample goes to `sink` (the estimator task's inputs). When [`Self::block_due`], the block is taken
     /// first ([`Self::close_block`]).
     fn step(&mut self, d: Number, sink: &mut impl SampleSink<Number>) -> StepOut;
-    /// The next step closes a block: deliver the estimator's result, then close the block.
-    fn block_due(&self) -> bool;
+    /// The block clock's tick for the next step (call once before each step): true when it
+    /// closes a block: deliver the estimator's result, then close the block.
+    fn block_due(&mut self) -> bool;
     /// Adopts the estimator task's result.
     fn deliver(&mut self, r: &BlockResult);
     /// Closes the block (when [`Self::block_due`], before the step) and hands its header to
@@ -132,7 +133,7 @@ impl LoopCore for ActiveCore {
         Number::step_loop(self, d, sink)
     }
     #[inline(always)]
-    fn block_due(&self) -> bool {
+    fn block_due(&mut self) -> bool {
         visco_core::Controller::block_due(self)
     }
     #[inline(always)]

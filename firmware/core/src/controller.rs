@@ -282,6 +282,9 @@ struct Dac<T> {
     inv_lsb: T,
     code_min: i32,
     code_max: i32,
+    /// `code_max − code_min`: a code is in range when `code − code_min`, as unsigned, is at
+    /// most this (one comparison).
+    code_span: u32,
 }
 
 impl<T: crate::Real> Dac<T> {
@@ -294,6 +297,7 @@ impl<T: crate::Real> Dac<T> {
             inv_lsb: T::from_f64(1.0 / lsb),
             code_min: -half as i32,
             code_max: (half - 1) as i32,
+            code_span: (2 * half - 1) as u32,
         }
     }
 
@@ -301,6 +305,11 @@ impl<T: crate::Real> Dac<T> {
     #[inline(always)]
     fn quantize(&self, v: T) -> (i32, T, bool) {
         let raw = ((v - self.mid) * self.inv_lsb).round_i32();
+        // In range, the usual case: one unsigned comparison instead of the clamp's two and
+        // the clamped test (the same code and flag).
+        if (raw.wrapping_sub(self.code_min) as u32) <= self.code_span {
+            return (raw, self.mid + T::from_i32(raw) * self.lsb, false);
+        }
         let code = if raw > self.code_max {
             self.code_max
         } else if raw < self.code_min {
@@ -396,6 +405,16 @@ struct ModeNow<T> {
     /// The input check's `spike` and `hold` ([`GuardParams`]).
     spike: T,
     hold: u32,
+    /// SVE with blocks and the decoupled regressor.
+    sve_blocks: bool,
+    /// `sve_blocks`, the surface held, the pixel's sums begun (their base set) and y settled
+    /// (`Controller::y_settled`): a pass takes the path whose tests of the regressor, the
+    /// block length, the surface, the sums' start and y's cache are known
+    /// (`Controller::sve_contact`). Set by a pass's sample that adds to the sums on the
+    /// general path; cleared where the sums are (a pixel's end, a pass's start: before any
+    /// `set_xy`, which only the move and the turn call), where the surface is lost, and with
+    /// the mode.
+    sve_fast: bool,
 }
 
 const BITS: FaultBits = FaultBits {
@@ -457,6 +476,16 @@ impl<T: crate::Real> Accumulator<T> {
         self.flags |= flags;
     }
 
+    /// [`Self::add_held`] once samples have been added (the base set) and `flags` are in
+    /// the sums' flags already.
+    #[inline(always)]
+    fn add_started<const L: usize>(&mut self, v: [T; 4]) {
+        for i in L.min(4)..4 {
+            self.sum[i] += v[i] - self.base[i];
+        }
+        self.pending += 1;
+    }
+
     /// Samples added.
     #[inline(always)]
     fn count(&self) -> u32 {
@@ -513,6 +542,18 @@ struct DiveState<T> {
     ramp_from: u32,
     estimate_from: u32,
     readout_from: u32,
+    /// The read-out's steady stretch with blocks, `fast_from ≤ t < fast_from + fast_len`:
+    /// from the sample after the read-out's first (its sums started, their base set and
+    /// `ESTIMATING` in their flags) to `ramp_from`, where a good sample estimates, is read out
+    /// and does not ramp. Tested as one unsigned comparison (`t − fast_from < fast_len`)
+    /// instead of three (the estimating sample, the read-out, the ramp-out) and the sums'
+    /// start; empty (`fast_len` 0) until the read-out's first sample and with blocks of one.
+    fast_from: u32,
+    fast_len: u32,
+    /// `readout_from − estimate_from` with blocks, 0 with blocks of one: the estimating
+    /// stretch before the read-out, `estimate_from ≤ t < readout_from` (≤ `ramp_from`), where
+    /// a good sample estimates only, tested as one comparison.
+    estimate_len: u32,
     u_cmd: T,
     u_safe: T,
     approach_from: T,
@@ -560,6 +601,20 @@ struct SveState<T> {
     left: bool,
 }
 
+/// The usual paths of a sample ([`Controller::update_hot`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(u8)]
+enum Hot {
+    /// Through the mode's and the phase's dispatch.
+    None,
+    /// No mode: U held.
+    Stopped,
+    /// DIVE, dwelling.
+    DiveDwell,
+    /// SVE, a pass on its fast path (`ModeNow::sve_fast`).
+    SvePass,
+}
+
 /// The identification core's per-sample state machine.
 ///
 /// `repr(C)` keeps the fields in this order: the per-sample state first, then the constants,
@@ -572,6 +627,9 @@ struct SveState<T> {
 pub struct Controller<T> {
     mode: Option<Mode>,
     phase: Phase,
+    /// The sample's usual path, kept with the mode, the phase and `ModeNow::sve_fast`
+    /// ([`Self::update_hot`]): one byte dispatches it where the mode and the phase took two.
+    hot: Hot,
     /// `set_x_same_y` would leave y as it is: y and its code are `y_quantized`'s value and
     /// code, and quantising that value gives it back. Cleared where y is set (`set_xy`).
     y_settled: bool,
@@ -659,7 +717,8 @@ impl<T: SineTable> Controller<T> {
                 spike: t(spike_m * nm),
                 hold: samples(f.hold_s, fs),
                 force_max: t(f.force_max_n / units::FORCE),
-                lost: samples(f.lost_s, fs),
+                // `samples` is ≥ 1.
+                lost: NonZeroU32::new(samples(f.lost_s, fs)).unwrap_or(NonZeroU32::MIN),
                 diverge: (f.diverge_memories * updates_per_memory).max(1.0) as u32,
                 residual_ratio: t(f.residual_ratio),
                 // The running means of |e| and |w| remember one estimator memory.
@@ -800,6 +859,9 @@ impl<T: SineTable> Controller<T> {
             ramp_from: 0,
             estimate_from: 0,
             readout_from: 0,
+            fast_from: 0,
+            fast_len: 0,
+            estimate_len: 0,
             u_cmd: u,
             u_safe: u,
             approach_from: u,
@@ -843,6 +905,8 @@ impl<T: SineTable> Controller<T> {
             last: p.dec_dive.saturating_sub(1),
             spike: p.guard_dive.spike,
             hold: p.guard_dive.hold,
+            sve_blocks: false,
+            sve_fast: false,
         };
         let task = EstimatorTask::new(
             TaskParams {
@@ -881,6 +945,7 @@ impl<T: SineTable> Controller<T> {
             mode: None,
             now,
             phase: Phase::Idle,
+            hot: Hot::Stopped,
             status_hold: (Phase::Idle as u32) << status::PHASE_SHIFT,
             y_settled: false,
             u,
@@ -1045,12 +1110,24 @@ impl<T: SineTable> Controller<T> {
         self.task
     }
 
-    /// True when the next step closes a block: adopt the result of the block before
-    /// ([`Self::deliver`]) first. Always false with blocks of one sample.
+    /// The block clock, one tick per loop sample: call exactly once before each
+    /// [`Self::step_loop`] (as [`Self::step_internal`] does). True when that step closes a
+    /// block: adopt the result of the block before ([`Self::deliver`]) and take the block
+    /// ([`Self::close_block`]) first. Always false with blocks of one sample. (The step
+    /// advanced the clock itself until round 5; the caller's test of it read the same two
+    /// words again.)
     #[inline(always)]
-    pub fn block_due(&self) -> bool {
+    pub fn block_due(&mut self) -> bool {
         let last = self.now.last;
-        last > 0 && self.tick >= last
+        let tick = self.tick;
+        // A block closes at the first sample of the next.
+        if tick >= last {
+            self.tick = 0;
+            last > 0
+        } else {
+            self.tick = tick + 1;
+            false
+        }
     }
 
     /// The sequencer's phase, and the status word's phase bits with it.
@@ -1059,6 +1136,28 @@ impl<T: SineTable> Controller<T> {
         self.phase = p;
         self.status_hold = (self.status_hold & !(0xFF << status::PHASE_SHIFT))
             | ((p as u32) << status::PHASE_SHIFT);
+        self.update_hot();
+    }
+
+    /// `ModeNow::sve_fast`, and the usual path with it.
+    #[inline(always)]
+    fn set_sve_fast(&mut self, fast: bool) {
+        self.now.sve_fast = fast;
+        self.update_hot();
+    }
+
+    /// The usual path from the mode, the phase and `ModeNow::sve_fast`: where any of them
+    /// changes.
+    #[inline(always)]
+    fn update_hot(&mut self) {
+        self.hot = match (self.mode, self.phase) {
+            (Some(Mode::Dive), Phase::Dwell) => Hot::DiveDwell,
+            (Some(Mode::Sve), Phase::Forward | Phase::Backward) if self.now.sve_fast => {
+                Hot::SvePass
+            }
+            (None, _) => Hot::Stopped,
+            _ => Hot::None,
+        };
     }
 
     /// A finished tap or pixel to take, and `RECORD_READY` with it.
@@ -1079,7 +1178,15 @@ impl<T: SineTable> Controller<T> {
             last: dec.saturating_sub(1),
             spike: gp.spike,
             hold: gp.hold,
+            sve_blocks: mode == Some(Mode::Sve)
+                && dec > 1
+                && matches!(self.p.sve.regressor, SveRegressor::Decoupled),
+            sve_fast: false,
         };
+        // The input check's steady path keeps the last `spike` (`Guard::leave_steady`); the
+        // general path computes the same.
+        self.guard.leave_steady();
+        self.update_hot();
     }
 
     /// Closes the block handed over so far and gives its header to `send` (the firmware: a
@@ -1200,42 +1307,59 @@ impl<T: SineTable> Controller<T> {
         let mut st = 0u32;
         // Input: out-of-range, non-finite and spiking readings are replaced by the last good
         // tip position, and the estimator waits (see `crate::guard`).
-        let ModeNow { last, spike, hold } = self.now;
+        let ModeNow { spike, hold, .. } = self.now;
         let input = self
             .guard
             .input_with(spike, hold, d_nm, self.u, self.p.d_max, &BITS);
         st |= input.flags;
         let d = input.d;
         let input_ok = input.ok;
-        // The block clock: a block closes at the first sample of the next (the caller has
-        // taken it, `close_block`, before this step).
-        if self.tick >= last {
-            self.tick = 0;
-        } else {
-            self.tick += 1;
-        }
+        // The block clock has ticked for this step (`block_due`, the caller's).
         let z = self.u - d;
         self.z = z;
 
         // While a mode runs, every sample goes to the estimator task (its prefilters need an
         // unbroken signal): from the mode's step with what to do with it, else here.
         let mut fed = false;
-        let u_next = match self.mode {
-            Some(Mode::Dive) => {
-                let u = self.dive_step(d, z, input_ok, &mut st, sink, &mut fed);
+        let u_next = match self.hot {
+            // The usual paths, dispatched by one byte (the same steps as through the mode's
+            // and the phase's below).
+            Hot::DiveDwell => {
+                self.dive.t = self.dive.t.saturating_add(1);
+                let t = self.dive.t;
+                let u = self.dive_dwell(t, d, z, input_ok, &mut st, sink, &mut fed);
                 if !fed {
                     self.feed(sink, z, T::ZERO, 0);
                 }
                 u
             }
-            Some(Mode::Sve) => {
-                let u = self.sve_step(d, z, input_ok, &mut st, sink, &mut fed);
+            Hot::SvePass => {
+                self.sve.t = self.sve.t.saturating_add(1);
+                let t = self.sve.t;
+                let u = self.sve_contact::<true>(t, d, z, input_ok, &mut st, sink, &mut fed);
                 if !fed {
                     self.feed(sink, z, T::ZERO, 0);
                 }
                 u
             }
-            None => self.u,
+            Hot::Stopped => self.u,
+            Hot::None => match self.mode {
+                Some(Mode::Dive) => {
+                    let u = self.dive_step(d, z, input_ok, &mut st, sink, &mut fed);
+                    if !fed {
+                        self.feed(sink, z, T::ZERO, 0);
+                    }
+                    u
+                }
+                Some(Mode::Sve) => {
+                    let u = self.sve_step(d, z, input_ok, &mut st, sink, &mut fed);
+                    if !fed {
+                        self.feed(sink, z, T::ZERO, 0);
+                    }
+                    u
+                }
+                None => self.u,
+            },
         };
         let (u_code, u, clamped) = self.p.u_dac.quantize(u_next);
         if clamped {
@@ -1349,17 +1473,15 @@ impl<T: SineTable> Controller<T> {
     /// estimating sample (meaningless for the others).
     #[inline(always)]
     fn feed(&mut self, sink: &mut impl SampleSink<T>, z: T, r: T, flags: u32) -> u32 {
-        let x = Sample {
-            z,
-            u: self.u,
-            r,
-            flags,
-        };
         if self.now.last > 0 {
-            sink.push(x);
-            self.block_n = self.block_n.wrapping_add(1);
-            status::ESTIMATING | self.adopted
+            self.feed_block(sink, z, r, flags)
         } else {
+            let x = Sample {
+                z,
+                u: self.u,
+                r,
+                flags,
+            };
             let Some((w, phi)) = self.task.feed(&x) else {
                 return 0;
             };
@@ -1375,6 +1497,19 @@ impl<T: SineTable> Controller<T> {
             };
             status::ESTIMATING | f
         }
+    }
+
+    /// [`Self::feed`] with blocks (`now.last` > 0): the sample to the sink.
+    #[inline(always)]
+    fn feed_block(&mut self, sink: &mut impl SampleSink<T>, z: T, r: T, flags: u32) -> u32 {
+        sink.push(Sample {
+            z,
+            u: self.u,
+            r,
+            flags,
+        });
+        self.block_n = self.block_n.wrapping_add(1);
+        status::ESTIMATING | self.adopted
     }
 
     /// The lowered base during an approach; `None` when the travel limit is reached.
@@ -1459,55 +1594,7 @@ impl<T: SineTable> Controller<T> {
                     }
                 }
             }
-            Phase::Dwell => {
-                *st |= status::CONTACT;
-                if self.dive_force_limit(d, &mut u, st) {
-                    self.dive.u_cmd = u;
-                    return u + self.exc.next(&self.p.dive.exc);
-                }
-                let estimating = input_ok && t >= self.dive.estimate_from;
-                let h = self.dive.h;
-                // The regressor's reference (`DiveState::r`, fixed for the tap).
-                let f = self.feed(
-                    sink,
-                    z,
-                    self.dive.r,
-                    if estimating { SAMPLE_EST } else { 0 },
-                );
-                *fed = true;
-                if estimating {
-                    *st |= f;
-                    // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
-                    // The depth from Z itself: its mean over the read-out is that of Z/Λ
-                    // (unit DC gain) but for the filter's edges and the tones' residue.
-                    if self.now.last > 0 {
-                        // Blocks: f is ESTIMATING and the flags of a result adopted at this
-                        // sample, whose divergence `deliver` put into the tap's flags
-                        // already; the read-out's θ̂ entries come with `settle` per block.
-                        if t >= self.dive.readout_from {
-                            let v = [T::ZERO, T::ZERO, T::ZERO, h - z];
-                            self.dive.acc.add_held::<3>(v, f);
-                            *st |= status::READOUT;
-                        }
-                    } else {
-                        if f & status::EST_DIVERGED != 0 {
-                            self.dive.flags |= status::EST_DIVERGED;
-                        }
-                        if t >= self.dive.readout_from {
-                            let v = self.dive_theta();
-                            self.dive.acc.add([v[0], v[1], v[2], h - z], f);
-                            *st |= status::READOUT;
-                        }
-                    }
-                }
-                // t + ramp ≥ dwell_end; dwell_end ≥ ramp_from, so the end is inside.
-                if t >= self.dive.ramp_from {
-                    self.exc.set_on(false);
-                    if t >= self.dive.dwell_end {
-                        self.finish_tap(true);
-                    }
-                }
-            }
+            Phase::Dwell => return self.dive_dwell(t, d, z, input_ok, st, sink, fed),
             Phase::Retract => {
                 u += self.p.retract_step;
                 if u >= self.dive.u_safe {
@@ -1517,6 +1604,97 @@ impl<T: SineTable> Controller<T> {
             }
             Phase::Wait if t >= self.p.dive.tap_samples => self.next_tap(),
             _ => {}
+        }
+        self.dive.u_cmd = u;
+        u + self.exc.next(&self.p.dive.exc)
+    }
+
+    /// One DIVE dwell sample (`dive_step`'s phase, and the usual path `Hot::DiveDwell`).
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn dive_dwell(
+        &mut self,
+        t: u32,
+        d: T,
+        z: T,
+        input_ok: bool,
+        st: &mut u32,
+        sink: &mut impl SampleSink<T>,
+        fed: &mut bool,
+    ) -> T {
+        let mut u = self.dive.u_cmd;
+        *st |= status::CONTACT;
+        if self.dive_force_limit(d, &mut u, st) {
+            self.dive.u_cmd = u;
+            return u + self.exc.next(&self.p.dive.exc);
+        }
+        if input_ok && t.wrapping_sub(self.dive.fast_from) < self.dive.fast_len {
+            // The read-out's steady stretch with blocks (see `DiveState::fast_from`):
+            // the path below for a good sample with estimate_from ≤ readout_from < t
+            // < ramp_from and `now.last` > 0, its tests known. U is `u_cmd` as it was.
+            let f = self.feed_block(sink, z, self.dive.r, SAMPLE_EST);
+            *fed = true;
+            *st |= f | status::READOUT;
+            let v = [T::ZERO, T::ZERO, T::ZERO, self.dive.h - z];
+            self.dive.acc.add_started::<3>(v);
+            // f is ESTIMATING (in the sums' flags already) and the adopted bits.
+            if self.adopted != 0 {
+                self.dive.acc.flags |= self.adopted;
+            }
+            return u + self.exc.next(&self.p.dive.exc);
+        }
+        if input_ok && t.wrapping_sub(self.dive.estimate_from) < self.dive.estimate_len {
+            // The estimating stretch before the read-out, with blocks (see
+            // `DiveState::estimate_len`): the path below with its tests known.
+            *st |= self.feed_block(sink, z, self.dive.r, SAMPLE_EST);
+            *fed = true;
+            return u + self.exc.next(&self.p.dive.exc);
+        }
+        let estimating = input_ok && t >= self.dive.estimate_from;
+        let h = self.dive.h;
+        // The regressor's reference (`DiveState::r`, fixed for the tap).
+        let f = self.feed(
+            sink,
+            z,
+            self.dive.r,
+            if estimating { SAMPLE_EST } else { 0 },
+        );
+        *fed = true;
+        if estimating {
+            *st |= f;
+            // z₀ is constant over the dwell: its mean is z₀ itself (finish_tap).
+            // The depth from Z itself: its mean over the read-out is that of Z/Λ
+            // (unit DC gain) but for the filter's edges and the tones' residue.
+            if self.now.last > 0 {
+                // Blocks: f is ESTIMATING and the flags of a result adopted at this
+                // sample, whose divergence `deliver` put into the tap's flags
+                // already; the read-out's θ̂ entries come with `settle` per block.
+                if t >= self.dive.readout_from {
+                    let v = [T::ZERO, T::ZERO, T::ZERO, h - z];
+                    self.dive.acc.add_held::<3>(v, f);
+                    *st |= status::READOUT;
+                    // The sums have begun: the steady stretch from the next sample
+                    // (empty from the ramp-out on).
+                    self.dive.fast_from = t.wrapping_add(1);
+                    self.dive.fast_len = self.dive.ramp_from.saturating_sub(t).saturating_sub(1);
+                }
+            } else {
+                if f & status::EST_DIVERGED != 0 {
+                    self.dive.flags |= status::EST_DIVERGED;
+                }
+                if t >= self.dive.readout_from {
+                    let v = self.dive_theta();
+                    self.dive.acc.add([v[0], v[1], v[2], h - z], f);
+                    *st |= status::READOUT;
+                }
+            }
+        }
+        // t + ramp ≥ dwell_end; dwell_end ≥ ramp_from, so the end is inside.
+        if t >= self.dive.ramp_from {
+            self.exc.set_on(false);
+            if t >= self.dive.dwell_end {
+                self.finish_tap(true);
+            }
         }
         self.dive.u_cmd = u;
         u + self.exc.next(&self.p.dive.exc)
@@ -1568,6 +1746,16 @@ impl<T: SineTable> Controller<T> {
         self.dive.ramp_from = self.dive.dwell_end.saturating_sub(p.ramp_samples);
         self.dive.estimate_from = estimate_from;
         self.dive.readout_from = readout_from.max(estimate_from);
+        // The steady stretch opens with the read-out's first sample.
+        self.dive.fast_len = 0;
+        // readout_from ≤ ramp_from: end − ramp − readout ≤ dwell_end − ramp, and
+        // estimate_from ≤ dwell_end − ramp − readout. The mode (and with it `now.last`)
+        // cannot change within a dwell: a command leaves the phase.
+        self.dive.estimate_len = if self.now.last > 0 {
+            self.dive.readout_from - estimate_from
+        } else {
+            0
+        };
         self.dive.acc.clear();
         self.dive.z0 = self.dive.h - p.indent;
         self.dive.r = match p.regressor {
@@ -1703,84 +1891,7 @@ impl<T: SineTable> Controller<T> {
                 self.sve.u_cmd
             }
             Phase::Settle | Phase::Forward | Phase::Backward | Phase::Turn => {
-                // The contact detector's low-pass keeps running: it gives the slow force. (Its
-                // state is the contact confirmed at the approach, latched until the next move.)
-                self.contact.lowpass(&self.p.contact, d);
-                let force = self.p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
-                self.sve.force_slow += self.p.force_slow_weight * (force - self.sve.force_slow);
-                if self.sve.lost {
-                    return self.sve_reapproach(t, z, st);
-                }
-                *st |= status::CONTACT;
-                if force > self.p.guard_sve.force_max {
-                    // Clear of the surface at once (the indentation and the clearance), then
-                    // come back down while the scan goes on.
-                    *st |= status::FORCE_LIMIT;
-                    self.exc.silence();
-                    let k = match self.p.sve.regressor {
-                        SveRegressor::Decoupled => self.theta2[1],
-                        SveRegressor::Paper => self.theta3[1],
-                    };
-                    // Up by the cantilever's bend and the indentation (springs in series), and
-                    // the clearance.
-                    self.sve.u_cmd += force / self.p.reg.stiffness + force / k + self.p.clearance;
-                    self.guard.reprime();
-                    self.sve_lose_surface();
-                    return self.sve.u_cmd;
-                }
-                if self.guard.surface_lost(
-                    &self.p.guard_sve,
-                    // Not while settling: the depth is still being reached.
-                    self.phase != Phase::Settle && self.sve.force_slow < self.p.lost_force,
-                ) {
-                    *st |= status::CONTACT_LOST;
-                    self.sve_lose_surface();
-                }
-                let mut f = 0;
-                // θ̂₂ ≥ k_min > 0 by projection, so the divisions are safe.
-                let (th, h_hat, depth) = match self.p.sve.regressor {
-                    SveRegressor::Decoupled => {
-                        // The task's high-passes run every sample, so their state stays
-                        // continuous.
-                        let flags = if input_ok {
-                            SAMPLE_HP | SAMPLE_EST
-                        } else {
-                            SAMPLE_HP
-                        };
-                        let fe = self.feed(sink, z, self.sve.z0, flags);
-                        if input_ok {
-                            f = fe;
-                        }
-                        let th = self.theta2;
-                        let depth = force / th[1];
-                        // The height from Z itself (the prefiltered Z/Λ is the task's): the
-                        // pixel's mean is the same but for the tones' residue.
-                        ([th[0], th[1], T::ZERO], z + depth, depth)
-                    }
-                    SveRegressor::Paper => {
-                        let fe =
-                            self.feed(sink, z, self.sve.z0, if input_ok { SAMPLE_EST } else { 0 });
-                        if input_ok {
-                            f = fe;
-                        }
-                        let th = self.theta3;
-                        let h = self.sve.z0 + th[2] / th[1];
-                        (th, h, h - z)
-                    }
-                };
-                *fed = true;
-                let (u_d, sat) = self
-                    .depth
-                    .update(&self.p.sve.depth, self.p.sve.depth_eff - depth);
-                if sat {
-                    f |= status::DEPTH_SATURATED;
-                }
-                *st |= f;
-                self.sve.u_cmd = u_d;
-                if self.sve_sequence(t, [th[0], th[1], h_hat, depth], f) {
-                    *st |= status::READOUT;
-                }
-                u_d + self.exc.next(&self.p.sve.exc)
+                self.sve_contact::<false>(t, d, z, input_ok, st, sink, fed)
             }
             Phase::Retract => {
                 let u = self.sve.u_cmd + self.p.retract_step;
@@ -1796,10 +1907,112 @@ impl<T: SineTable> Controller<T> {
         }
     }
 
+    /// One SVE sample in contact (settle, the passes, the turn). `FAST`: a pass (forward or
+    /// backward) with blocks and the decoupled regressor, the surface held and the pixel's
+    /// sums begun ([`ModeNow::sve_fast`]), whose tests of the phase, the regressor, the block
+    /// length, the surface and the sums' start are known; the same operations on the same
+    /// values as the general path.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn sve_contact<const FAST: bool>(
+        &mut self,
+        t: u32,
+        d: T,
+        z: T,
+        input_ok: bool,
+        st: &mut u32,
+        sink: &mut impl SampleSink<T>,
+        fed: &mut bool,
+    ) -> T {
+        // The contact detector's low-pass keeps running: it gives the slow force. (Its
+        // state is the contact confirmed at the approach, latched until the next move.)
+        self.contact.lowpass(&self.p.contact, d);
+        let force = self.p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
+        self.sve.force_slow += self.p.force_slow_weight * (force - self.sve.force_slow);
+        if !FAST && self.sve.lost {
+            return self.sve_reapproach(t, z, st);
+        }
+        *st |= status::CONTACT;
+        if force > self.p.guard_sve.force_max {
+            // Clear of the surface at once (the indentation and the clearance), then
+            // come back down while the scan goes on.
+            *st |= status::FORCE_LIMIT;
+            self.exc.silence();
+            let k = match self.p.sve.regressor {
+                SveRegressor::Decoupled => self.theta2[1],
+                SveRegressor::Paper => self.theta3[1],
+            };
+            // Up by the cantilever's bend and the indentation (springs in series), and
+            // the clearance.
+            self.sve.u_cmd += force / self.p.reg.stiffness + force / k + self.p.clearance;
+            self.guard.reprime();
+            self.sve_lose_surface();
+            return self.sve.u_cmd;
+        }
+        if self.guard.surface_lost(
+            &self.p.guard_sve,
+            // Not while settling: the depth is still being reached.
+            (FAST || self.phase != Phase::Settle) && self.sve.force_slow < self.p.lost_force,
+        ) {
+            *st |= status::CONTACT_LOST;
+            self.sve_lose_surface();
+        }
+        let mut f = 0;
+        // θ̂₂ ≥ k_min > 0 by projection, so the divisions are safe.
+        let decoupled = FAST || matches!(self.p.sve.regressor, SveRegressor::Decoupled);
+        let (th, h_hat, depth) = match decoupled {
+            true => {
+                // The task's high-passes run every sample, so their state stays
+                // continuous.
+                let flags = if input_ok {
+                    SAMPLE_HP | SAMPLE_EST
+                } else {
+                    SAMPLE_HP
+                };
+                let fe = if FAST {
+                    self.feed_block(sink, z, self.sve.z0, flags)
+                } else {
+                    self.feed(sink, z, self.sve.z0, flags)
+                };
+                if input_ok {
+                    f = fe;
+                }
+                let th = self.theta2;
+                let depth = force / th[1];
+                // The height from Z itself (the prefiltered Z/Λ is the task's): the
+                // pixel's mean is the same but for the tones' residue.
+                ([th[0], th[1], T::ZERO], z + depth, depth)
+            }
+            false => {
+                let fe = self.feed(sink, z, self.sve.z0, if input_ok { SAMPLE_EST } else { 0 });
+                if input_ok {
+                    f = fe;
+                }
+                let th = self.theta3;
+                let h = self.sve.z0 + th[2] / th[1];
+                (th, h, h - z)
+            }
+        };
+        *fed = true;
+        let (u_d, sat) = self
+            .depth
+            .update(&self.p.sve.depth, self.p.sve.depth_eff - depth);
+        if sat {
+            f |= status::DEPTH_SATURATED;
+        }
+        *st |= f;
+        self.sve.u_cmd = u_d;
+        if self.sve_sequence::<FAST>(t, [th[0], th[1], h_hat, depth], f) {
+            *st |= status::READOUT;
+        }
+        u_d + self.exc.next(&self.p.sve.exc)
+    }
+
     /// The surface is gone (a pit, the force limit): excitation out, estimator and depth
     /// integrator frozen, re-approach from here while the scan goes on.
     fn sve_lose_surface(&mut self) {
         self.sve.lost = true;
+        self.set_sve_fast(false);
         self.sve.left = false;
         self.sve.reapproach_from = self.sve.u_cmd;
         self.exc.set_on(false);
@@ -1839,7 +2052,7 @@ impl<T: SineTable> Controller<T> {
             SveRegressor::Paper => (th3[0], th3[1]),
         };
         let h = z;
-        if self.sve_sequence(t, [c, k, h, T::ZERO], status::CONTACT_LOST) {
+        if self.sve_sequence::<false>(t, [c, k, h, T::ZERO], status::CONTACT_LOST) {
             *st |= status::READOUT;
         }
         self.sve.u_cmd + self.exc.next(&self.p.sve.exc)
@@ -1848,17 +2061,32 @@ impl<T: SineTable> Controller<T> {
     /// The raster: settle, then forward, backward, turn per line; pixel bins along the way.
     #[inline(always)]
     /// Returns true when the sample went into a pixel.
-    fn sve_sequence(&mut self, t: u32, v: [T; 4], flags: u32) -> bool {
+    fn sve_sequence<const FAST: bool>(&mut self, t: u32, v: [T; 4], flags: u32) -> bool {
         let mut read = false;
-        match self.phase {
+        // FAST: a pass (see `sve_contact`).
+        let phase = if FAST { Phase::Forward } else { self.phase };
+        match phase {
             Phase::Settle if t >= self.p.sve.settle_samples => self.begin_line(true),
             Phase::Forward | Phase::Backward => {
                 let forward = self.phase == Phase::Forward;
                 let f = T::from_i32(t as i32) * self.p.sve.inv_half;
                 let x = self.sve.x_from + self.sve.x_span * f;
-                self.set_x_same_y(x);
-                if self.now.last > 0 {
+                if FAST {
+                    // y is settled (`ModeNow::sve_fast`): `set_x_same_y` would store x only.
+                    let (xc, xv, _) = self.p.xy_dac.quantize(x);
+                    self.x = xv;
+                    self.x_code = xc;
+                } else {
+                    self.set_x_same_y(x);
+                }
+                if FAST {
+                    self.sve.acc.add_started::<2>(v);
+                    self.sve.acc.flags |= flags;
+                } else if self.now.last > 0 {
                     self.sve.acc.add_held::<2>(v, flags);
+                    // The sums have begun: the next samples of the pass can take the fast
+                    // path, while the surface holds.
+                    self.set_sve_fast(self.now.sve_blocks && !self.sve.lost && self.y_settled);
                 } else {
                     self.sve.acc.add(v, flags);
                 }
@@ -1909,6 +2137,7 @@ impl<T: SineTable> Controller<T> {
         self.sve.pixel = 0;
         self.sve.next_boundary = (p.half_samples as u64 / NonZeroU64::from(p.pixels)) as u32;
         self.sve.acc.clear();
+        self.set_sve_fast(false);
         self.sve.x_acc = T::ZERO;
         (self.sve.x_from, self.sve.x_span) = if forward {
             (p.x0, p.x1 - p.x0)
@@ -1949,6 +2178,7 @@ impl<T: SineTable> Controller<T> {
         };
         s.acc.clear();
         s.x_acc = T::ZERO;
+        self.set_sve_fast(false);
         self.set_record(Record::Pixel(rec));
     }
 }

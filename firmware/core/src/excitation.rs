@@ -217,30 +217,50 @@ pub struct Excitation<T> {
     /// Integer phases of the current chunk's last sample (of the latest sample when `left` is 0).
     phase1: u32,
     phase2: u32,
-    /// Rotations left in the current chunk; 0: the next sample starts a chunk.
-    left: u32,
+    /// Bits 0–30: the rotations left in the current chunk (0: the next sample starts a
+    /// chunk); bit 31 ([`FULL`]): `on` and the envelope at 1, kept with them. One word, so
+    /// that the usual sample (fully on, inside a chunk) is one comparison, `> FULL`, and its
+    /// decrement the count's.
+    left_full: u32,
     envelope: T,
     on: bool,
-    /// `on` and the envelope at 1, kept with them: the per-sample test is then one byte, not
-    /// a float comparison.
-    full: bool,
     /// The envelope above zero, kept with it (the step's `EXCITING` flag, every sample).
     sounding: bool,
 }
 
+/// [`Excitation::left_full`]'s bit for "fully on".
+const FULL: u32 = 1 << 31;
+
 impl<T: SineTable> Excitation<T> {
+    /// Rotations left in the current chunk.
+    #[inline(always)]
+    fn left(&self) -> u32 {
+        self.left_full & !FULL
+    }
+
+    /// Fully on: `on` and the envelope at 1.
+    #[inline(always)]
+    fn full(&self) -> bool {
+        self.left_full & FULL != 0
+    }
+
+    #[inline(always)]
+    fn set_full(&mut self, full: bool) {
+        self.left_full = self.left() | if full { FULL } else { 0 };
+    }
+
     /// Ramp the envelope towards 1 (`true`) or 0 (`false`).
     #[inline(always)]
     pub fn set_on(&mut self, on: bool) {
         self.on = on;
-        self.full = on && self.envelope == T::ONE;
+        self.set_full(on && self.envelope == T::ONE);
     }
 
     /// Switch off at once.
     pub fn silence(&mut self) {
         self.on = false;
         self.envelope = T::ZERO;
-        self.full = false;
+        self.set_full(false);
         self.sounding = false;
     }
 
@@ -264,9 +284,9 @@ impl<T: SineTable> Excitation<T> {
     pub fn phases(&self, p: &ExcitationParams<T>) -> (u32, u32) {
         (
             self.phase1
-                .wrapping_sub(self.left.wrapping_mul(p.tone1.increment)),
+                .wrapping_sub(self.left().wrapping_mul(p.tone1.increment)),
             self.phase2
-                .wrapping_sub(self.left.wrapping_mul(p.tone2.increment)),
+                .wrapping_sub(self.left().wrapping_mul(p.tone2.increment)),
         )
     }
 
@@ -288,7 +308,7 @@ impl<T: SineTable> Excitation<T> {
         self.osc2 = oscillator(first2, i2, p.tone2.amplitude);
         self.phase1 = first1.wrapping_add((RESYNC - 1).wrapping_mul(i1));
         self.phase2 = first2.wrapping_add((RESYNC - 1).wrapping_mul(i2));
-        self.left = RESYNC - 1;
+        self.left_full = (self.left_full & FULL) | (RESYNC - 1);
     }
 
     /// Both tones advanced one sample: `a₁·sin θ₁ + a₂·sin θ₂`.
@@ -301,10 +321,10 @@ impl<T: SineTable> Excitation<T> {
             return p.tone1.amplitude * sine::<T>(self.phase1)
                 + p.tone2.amplitude * sine::<T>(self.phase2);
         }
-        if self.left == 0 {
+        if self.left() == 0 {
             self.start_chunk(p);
         } else {
-            self.left -= 1;
+            self.left_full -= 1;
             self.osc1 = recur(self.osc1, p.tone1.twice_cos);
             self.osc2 = recur(self.osc2, p.tone2.twice_cos);
         }
@@ -314,9 +334,17 @@ impl<T: SineTable> Excitation<T> {
     /// The next excitation sample, and advance.
     #[inline(always)]
     pub fn next(&mut self, p: &ExcitationParams<T>) -> T {
+        // The usual sample, fully on inside a chunk: the path below's operations, its two
+        // tests in one.
+        if T::RECURSIVE && self.left_full > FULL {
+            self.left_full -= 1;
+            self.osc1 = recur(self.osc1, p.tone1.twice_cos);
+            self.osc2 = recur(self.osc2, p.tone2.twice_cos);
+            return self.osc1[0] + self.osc2[0];
+        }
         // The phases run continuously, on or off, so the tones are coherent from tap to tap.
         let s = self.tones(p);
-        if self.full {
+        if self.full() {
             // Fully on: the ramp below would leave the envelope at 1, and 1·s = s.
             return s;
         }
@@ -326,7 +354,7 @@ impl<T: SineTable> Excitation<T> {
             self.envelope - p.ramp_step
         };
         self.envelope = env.clamp_to(T::ZERO, T::ONE);
-        self.full = self.on && self.envelope == T::ONE;
+        self.set_full(self.on && self.envelope == T::ONE);
         self.sounding = self.envelope > T::ZERO;
         if self.sounding {
             self.envelope * s

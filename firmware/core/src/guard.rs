@@ -45,6 +45,7 @@
 
 use crate::estimator::UpdateInfo;
 use crate::real::Real;
+use core::num::NonZeroU32;
 
 /// Constants of the fault handling (internal units).
 #[derive(Clone, Copy, Debug)]
@@ -55,8 +56,9 @@ pub struct GuardParams<T> {
     pub hold: u32,
     /// Static force limit (nN).
     pub force_max: T,
-    /// Samples without contact force before SVE declares the surface lost.
-    pub lost: u32,
+    /// Samples without contact force before SVE declares the surface lost (≥ 1: a sample
+    /// with force is never a lost surface, and the check says so without a comparison).
+    pub lost: NonZeroU32,
     /// Consecutive updates before a divergence sign triggers the reset.
     pub diverge: u32,
     /// Residual-to-measurement ratio beyond which the model explains nothing.
@@ -111,7 +113,8 @@ pub struct Input<T> {
 
 impl<T: Real> Guard<T> {
     /// Check one ADC reading `d` (internal units) with the base at `u` (the DAC value held
-    /// over the period that ends now); `d_max` is the ADC's full scale.
+    /// over the period that ends now); `d_max` is the ADC's full scale. Before a call with
+    /// another `p.spike` than the last, call [`Self::leave_steady`].
     #[inline(always)]
     pub fn input(
         &mut self,
@@ -125,7 +128,8 @@ impl<T: Real> Guard<T> {
     }
 
     /// [`Self::input`] with the two constants it uses, `spike` and `hold` of [`GuardParams`]
-    /// (the controller keeps the running mode's next to its per-sample state).
+    /// (the controller keeps the running mode's next to its per-sample state). Before a call
+    /// with another `spike` than the last, call [`Self::leave_steady`].
     #[inline(always)]
     pub fn input_with(
         &mut self,
@@ -146,7 +150,9 @@ impl<T: Real> Guard<T> {
                 // (z − z_good)/1 = z − z_good exactly (both finite: d in range, U a DAC value).
                 self.velocity = z - self.z_good;
                 self.z_good = z;
-                self.reach = spike;
+                // `reach = spike` is stored already: the path below stored this `spike` when it
+                // entered the steady path, and a caller that changes `spike` leaves the
+                // steady path first ([`Self::leave_steady`]).
                 return Input {
                     d,
                     ok: true,
@@ -204,6 +210,16 @@ impl<T: Real> Guard<T> {
         }
     }
 
+    /// Leave the steady path for the general one, which computes the same (call before
+    /// [`Self::input_with`] takes another `spike`: the steady path does not store it).
+    #[inline(always)]
+    pub fn leave_steady(&mut self) {
+        if self.steady {
+            self.predicted = self.z_good;
+            self.steady = false;
+        }
+    }
+
     /// Forget the last good tip position (after a jump of U that moves the tip legitimately
     /// fast, such as the force-limit retract).
     pub fn reprime(&mut self) {
@@ -222,8 +238,9 @@ impl<T: Real> Guard<T> {
             self.lost_count = self.lost_count.saturating_add(1);
         } else {
             self.lost_count = 0;
+            return false;
         }
-        self.lost_count >= p.lost
+        self.lost_count >= p.lost.get()
     }
 
     /// Reset the surface check (contact found again).
@@ -460,7 +477,7 @@ mod tests {
             spike: 50.0,
             hold: 10,
             force_max: 100.0,
-            lost: 5,
+            lost: NonZeroU32::new(5).unwrap(),
             diverge: 20,
             residual_ratio: 0.3,
             mean_weight: 0.1,

@@ -84,6 +84,7 @@ fn run<T: Real + PartialEq + core::fmt::Debug>(to_bits: fn(T) -> u64) {
         let mut g: Guard<T> = Guard::default();
         let mut o: Reference<T> = Reference::default();
         let spike = T::from_f64(2.0 + 10.0 * rnd());
+        let mut last_spike = spike;
         let mut pos = 0.0f64;
         let mut vel = 0.0f64;
         for k in 0..5000 {
@@ -108,6 +109,11 @@ fn run<T: Real + PartialEq + core::fmt::Debug>(to_bits: fn(T) -> u64) {
             } else {
                 spike
             };
+            // The contract: the steady path keeps the last `spike`.
+            if spike_k != last_spike {
+                g.leave_steady();
+                last_spike = spike_k;
+            }
             let (dt, ut) = (T::from_f64(d), T::from_f64(u));
             let a = g.input_with(spike_k, 3, dt, ut, T::from_f64(1000.0), &flags);
             let b = o.input(spike_k, 3, dt, ut, T::from_f64(1000.0), &flags);
