@@ -1,12 +1,13 @@
 //! `second-eigenmode`: the cantilever's second flexural mode (about 6.27 × f₀ for a uniform
 //! beam) is excited.
 //!
-//! The first-mode model lumps every mode's static compliance into K; what it misses is the
-//! second mode's own dynamics, `H₂(s) = ω₂²/(s² + (ω₂/Q₂)·s + ω₂²)`. The mode is driven two
-//! ways, each with its own gain in the detector's reading:
+//! A K from a static calibration lumps every mode's static compliance; what the first-mode
+//! model then misses is the second mode's own dynamics, `H₂(s) = ω₂²/(s² + (ω₂/Q₂)·s + ω₂²)`.
+//! The mode is driven two ways, each with its own gains in the detector's reading:
 //!
-//! * by the tip force: the detector adds `g_F·(H₂ − 1)·F_ts/K` (the dynamic part only: its
-//!   static share is already in K) — a ring after every sharp change of the tip force;
+//! * by the tip force: the detector adds `g_F·(H₂ − 1)·F_ts/K` (the dynamic part, for such a
+//!   K; the static share `g_S` below is for a K that leaves it out) — a ring after every
+//!   sharp change of the tip force;
 //! * by the base's motion (the piezo shakes the lever's clamp): relative to the base the mode
 //!   follows `s²/(s² + (ω₂/Q₂)s + ω₂²)·U` — every step of a DAC's staircase, every jerk of
 //!   the piezo rings it — and the detector adds `g_U` times that. A medium that damps the
@@ -47,8 +48,9 @@ pub struct SecondEigenmode {
 }
 
 impl SecondEigenmode {
-    /// Frequency (MHz, 1/µs), quality factor, gains on the tip force, on the base's
-    /// acceleration and on its velocity, cantilever stiffness K (nN/nm).
+    /// Frequency (MHz, 1/µs), quality factor, gains on the tip force's dynamic part, on the
+    /// base's acceleration, on its velocity and on the tip force's static part, cantilever
+    /// stiffness K (nN/nm).
     pub fn new(
         f_mhz: f64,
         q: f64,
