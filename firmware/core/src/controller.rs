@@ -660,8 +660,15 @@ pub struct Controller<T> {
     /// θ̂ of the two- and three-parameter estimators as the loop uses them.
     theta2: [T; 2],
     theta3: [T; 3],
-    /// Samples handed to the sink since the block began (or since the last restart in it).
-    block_n: u32,
+    /// The block clock's value at which the block's own samples begin: 0, or the step of the
+    /// last restart in it (1 in the first block, whose clock starts at 1). While a mode runs
+    /// every step hands one sample to the sink, so the block's samples are the steps since
+    /// then less the stopped ones (`unfed`): no count per sample (it duplicated the sink's).
+    block_from: u32,
+    /// Steps since `block_from` that handed no sample (the core stopped).
+    unfed: u32,
+    /// The steps of the block just closed ([`Self::block_due`]).
+    closed_steps: u32,
     /// Samples handed over before a restart and not yet accounted for by a block header: the
     /// next header tells the task to discard them.
     skip_n: u32,
@@ -930,7 +937,9 @@ impl<T: SineTable> Controller<T> {
             task,
             theta2: th2,
             theta3: task.estimator3().theta(),
-            block_n: 0,
+            block_from: 1,
+            unfed: 0,
+            closed_steps: 0,
             skip_n: 0,
             host_sums: BlockSums::default(),
             target: Target::Dive3,
@@ -1123,6 +1132,7 @@ impl<T: SineTable> Controller<T> {
         // A block closes at the first sample of the next.
         if tick >= last {
             self.tick = 0;
+            self.closed_steps = tick.wrapping_add(1);
             last > 0
         } else {
             self.tick = tick + 1;
@@ -1342,7 +1352,11 @@ impl<T: SineTable> Controller<T> {
                 }
                 u
             }
-            Hot::Stopped => self.u,
+            Hot::Stopped => {
+                // No sample handed over (see `block_from`).
+                self.unfed = self.unfed.wrapping_add(1);
+                self.u
+            }
             Hot::None => match self.mode {
                 Some(Mode::Dive) => {
                     let u = self.dive_step(d, z, input_ok, &mut st, sink, &mut fed);
@@ -1358,7 +1372,11 @@ impl<T: SineTable> Controller<T> {
                     }
                     u
                 }
-                None => self.u,
+                // Unreachable: no mode is `Hot::Stopped` (`update_hot`).
+                None => {
+                    self.unfed = self.unfed.wrapping_add(1);
+                    self.u
+                }
             },
         };
         let (u_code, u, clamped) = self.p.u_dac.quantize(u_next);
@@ -1427,7 +1445,14 @@ impl<T: SineTable> Controller<T> {
     /// takes samples between restarts: the target's.
     #[inline(always)]
     fn closing_block(&mut self) -> Option<Block<T>> {
-        if self.block_n == 0 {
+        // The closed block's samples handed over since its start or its last restart.
+        let n = self
+            .closed_steps
+            .wrapping_sub(self.block_from)
+            .wrapping_sub(self.unfed);
+        self.block_from = 0;
+        self.unfed = 0;
+        if n == 0 {
             return None;
         }
         let b = Block {
@@ -1436,10 +1461,9 @@ impl<T: SineTable> Controller<T> {
             epoch: self.epoch,
             target: self.target,
             skip: self.skip_n,
-            samples: self.block_n,
+            samples: n,
         };
         self.skip_n = 0;
-        self.block_n = 0;
         Some(b)
     }
 
@@ -1453,8 +1477,15 @@ impl<T: SineTable> Controller<T> {
         self.target = target;
         // The block's samples so far are discarded: the task skips them, the host's sums
         // start again.
-        self.skip_n = self.skip_n.wrapping_add(self.block_n);
-        self.block_n = 0;
+        // This step's sample, handed over after the restart, is the block's own (`tick`:
+        // this step's clock, set by `block_due`).
+        let handed = self
+            .tick
+            .wrapping_sub(self.block_from)
+            .wrapping_sub(self.unfed);
+        self.skip_n = self.skip_n.wrapping_add(handed);
+        self.block_from = self.tick;
+        self.unfed = 0;
         self.host_sums.clear();
         self.pending_restart = Some(theta0);
         self.pending_watch = true;
@@ -1508,7 +1539,6 @@ impl<T: SineTable> Controller<T> {
             r,
             flags,
         });
-        self.block_n = self.block_n.wrapping_add(1);
         status::ESTIMATING | self.adopted
     }
 
