@@ -1161,7 +1161,8 @@ impl<T: SineTable> Controller<T> {
     #[inline(always)]
     fn update_hot(&mut self) {
         self.hot = match (self.mode, self.phase) {
-            (Some(Mode::Dive), Phase::Dwell) => Hot::DiveDwell,
+            // The dwell's path adds to t without saturating (`step_loop`): from below u32::MAX.
+            (Some(Mode::Dive), Phase::Dwell) if self.dive.t != u32::MAX => Hot::DiveDwell,
             (Some(Mode::Sve), Phase::Forward | Phase::Backward) if self.now.sve_fast => {
                 Hot::SvePass
             }
@@ -1335,7 +1336,10 @@ impl<T: SineTable> Controller<T> {
             // The usual paths, dispatched by one byte (the same steps as through the mode's
             // and the phase's below).
             Hot::DiveDwell => {
-                self.dive.t = self.dive.t.saturating_add(1);
+                // The general path's saturating add, as a wrapping one: here t < u32::MAX
+                // (`update_hot` takes this path only from t < u32::MAX, and a dwell ends once
+                // t ≥ dwell_end, so every later sample of it starts below dwell_end).
+                self.dive.t = self.dive.t.wrapping_add(1);
                 let t = self.dive.t;
                 let u = self.dive_dwell(t, d, z, input_ok, &mut st, sink, &mut fed);
                 if !fed {
@@ -1344,7 +1348,10 @@ impl<T: SineTable> Controller<T> {
                 u
             }
             Hot::SvePass => {
-                self.sve.t = self.sve.t.saturating_add(1);
+                // As the dwell's: a pass's sample on this path starts at t < next_boundary
+                // (`sve_fast` is kept only by a sample before the pixel's boundary, and cleared
+                // at it, with `next_boundary` and t set anew only where `sve_fast` is cleared).
+                self.sve.t = self.sve.t.wrapping_add(1);
                 let t = self.sve.t;
                 let u = self.sve_contact::<true>(t, d, z, input_ok, &mut st, sink, &mut fed);
                 if !fed {
