@@ -1480,11 +1480,11 @@ pub const GOAL_SVE: f64 = 200.0;
 /// tested once, the steady input check without its reach store; all bit-identical):
 /// 261 → 225, 345 → 298; and with round 6 (the loop state's cell without its `Option` test,
 /// the block's sample count from the block clock, the dwell's and the pass's clocks by a
-/// wrapping add; all bit-identical): 225 → 216, 298 → 287.5.
-pub const CEILING_DIVE: f64 = 218.0;
+/// wrapping add; all bit-identical): 225 → 214, 298 → 287.6.
+pub const CEILING_DIVE: f64 = 217.0;
 /// See [`CEILING_DIVE`].
 pub const CEILING_SVE: f64 = 290.0;
-/// Issue 14: instructions per sample with the estimator interrupt's share (measured 309 / 403
+/// Issue 14: instructions per sample with the estimator interrupt's share (measured 307 / 403
 /// when last set, plus 1 %, after round 6; 318 / 413 after round 5's usual paths; 354 / 460
 /// after the DIVE force
 /// limit's threshold per tap; 358 / 460 after
@@ -1503,7 +1503,7 @@ pub const CEILING_SVE: f64 = 290.0;
 /// operations per sample on both sides, so the average rose while the loop interrupt fell;
 /// 512 / 612 before the copy-free hand-over, 542 / 634 before the cheaper arithmetic), and
 /// that goal (a 1 MHz loop at half of a 400 MHz core).
-pub const CEILING_AVG_DIVE: f64 = 313.0;
+pub const CEILING_AVG_DIVE: f64 = 311.0;
 /// See [`CEILING_AVG_DIVE`].
 pub const CEILING_AVG_SVE: f64 = 407.0;
 /// See [`CEILING_AVG_DIVE`].
@@ -1652,7 +1652,7 @@ pub const TABLE: [(Machine, Number, Estimator); 8] = [
 /// interrupt in the most expensive window of each mode (the figures measured when set, plus
 /// about 1 %): least squares. Since issue 14 the loop interrupt is the same for both
 /// estimators (it queues the block's samples either way; the estimator interrupt differs).
-/// Measured 861 / 1 606 when last set (least squares; gradient 861 / 1 606), after round 6;
+/// Measured 859 / 1 608 when last set (least squares; gradient 859 / 1 607), after round 6;
 /// 871 / 1 632 after round 5's usual paths; 910 / 1 682 after the DIVE
 /// force limit's threshold per tap (a comparison where a 64-bit product was); 981 / 1 688
 /// after the samples were handed over in whole blocks; 986 / 1 736 before, after the
@@ -1665,11 +1665,11 @@ pub const TABLE: [(Machine, Number, Estimator); 8] = [
 /// division by 1; 3 903 / 4 776 before the block sums moved to the estimator task; 4 004 /
 /// 4 857 before the copy-free block hand-over and the inlined sequencers; 4 081 / 4 901
 /// before issue 14's read-out sums per block and s²Z/Λ on demand).
-pub const CEILING_Q32_M3_DIVE: f64 = 870.0;
+pub const CEILING_Q32_M3_DIVE: f64 = 868.0;
 /// See [`CEILING_Q32_M3_DIVE`].
 pub const CEILING_Q32_M3_SVE: f64 = 1_625.0;
 /// See [`CEILING_Q32_M3_DIVE`]; the gradient estimator.
-pub const CEILING_Q32_M3_GRADIENT_DIVE: f64 = 870.0;
+pub const CEILING_Q32_M3_GRADIENT_DIVE: f64 = 868.0;
 /// See [`CEILING_Q32_M3_DIVE`]; the gradient estimator.
 pub const CEILING_Q32_M3_GRADIENT_SVE: f64 = 1_625.0;
 
