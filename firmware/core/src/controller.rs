@@ -660,8 +660,19 @@ pub struct Controller<T> {
     /// θ̂ of the two- and three-parameter estimators as the loop uses them.
     theta2: [T; 2],
     theta3: [T; 3],
-    /// Samples handed to the sink since the block began (or since the last restart in it).
-    block_n: u32,
+    /// The block clock's value at which the block's own samples begin: 0, or the step of the
+    /// last restart in it (1 in the first block, whose clock starts at 1). While a mode runs
+    /// every step hands one sample to the sink, so the block's samples are the steps since
+    /// then less the stopped ones (`unfed`): no count per sample (it duplicated the sink's).
+    block_from: u32,
+    /// Steps since `block_from` that handed no sample (the core stopped, with blocks).
+    unfed: u32,
+    /// Samples handed over before `block_from` and not in a header yet: those of a block left
+    /// open when the blocks stopped (a mode with blocks of one, whose clock stands still),
+    /// carried until the blocks run again (`Self::handed`).
+    carry: u32,
+    /// The steps of the block just closed ([`Self::block_due`]).
+    closed_steps: u32,
     /// Samples handed over before a restart and not yet accounted for by a block header: the
     /// next header tells the task to discard them.
     skip_n: u32,
@@ -930,7 +941,11 @@ impl<T: SineTable> Controller<T> {
             task,
             theta2: th2,
             theta3: task.estimator3().theta(),
-            block_n: 0,
+            // The clock's first step is 1 (`block_due` from 0).
+            block_from: 1,
+            unfed: 0,
+            carry: 0,
+            closed_steps: 0,
             skip_n: 0,
             host_sums: BlockSums::default(),
             target: Target::Dive3,
@@ -1002,12 +1017,12 @@ impl<T: SineTable> Controller<T> {
     pub fn command(&mut self, cmd: Command) {
         match cmd {
             Command::Stop => {
-                self.set_mode(None);
+                self.set_mode(None, true);
                 self.set_phase(Phase::Idle);
                 self.exc.silence();
             }
             Command::Start(Mode::Dive) => {
-                self.set_mode(Some(Mode::Dive));
+                self.set_mode(Some(Mode::Dive), true);
                 let p = &self.p.dive;
                 self.dive.tap = 0;
                 self.dive.t = 0;
@@ -1023,7 +1038,7 @@ impl<T: SineTable> Controller<T> {
                 self.set_phase(Phase::Move);
             }
             Command::Start(Mode::Sve) => {
-                self.set_mode(Some(Mode::Sve));
+                self.set_mode(Some(Mode::Sve), true);
                 self.sve.line = 0;
                 self.sve.t = 0;
                 self.sve.u_cmd = self.p.u_start;
@@ -1123,6 +1138,7 @@ impl<T: SineTable> Controller<T> {
         // A block closes at the first sample of the next.
         if tick >= last {
             self.tick = 0;
+            self.closed_steps = tick.wrapping_add(1);
             last > 0
         } else {
             self.tick = tick + 1;
@@ -1151,7 +1167,8 @@ impl<T: SineTable> Controller<T> {
     #[inline(always)]
     fn update_hot(&mut self) {
         self.hot = match (self.mode, self.phase) {
-            (Some(Mode::Dive), Phase::Dwell) => Hot::DiveDwell,
+            // The dwell's path adds to t without saturating (`step_loop`): from below u32::MAX.
+            (Some(Mode::Dive), Phase::Dwell) if self.dive.t != u32::MAX => Hot::DiveDwell,
             (Some(Mode::Sve), Phase::Forward | Phase::Backward) if self.now.sve_fast => {
                 Hot::SvePass
             }
@@ -1167,8 +1184,22 @@ impl<T: SineTable> Controller<T> {
         self.status_hold |= status::RECORD_READY;
     }
 
-    /// The running mode, and its per-sample constants with it.
-    fn set_mode(&mut self, mode: Option<Mode>) {
+    /// Samples handed over since the block's start or its last restart, up to the step whose
+    /// clock is `upto` (not counting it), while the blocks run: every step of a running mode
+    /// hands one sample over, the stopped ones (`unfed`) none. (With blocks of one none does,
+    /// the clock stands at 0 and the count is `carry`.)
+    #[inline(always)]
+    fn handed(&self, upto: u32) -> u32 {
+        self.carry
+            .wrapping_add(upto)
+            .wrapping_sub(self.block_from)
+            .wrapping_sub(self.unfed)
+    }
+
+    /// The running mode, and its per-sample constants with it. `between`: called between
+    /// two steps (a command), not inside one (before that step hands its sample over).
+    fn set_mode(&mut self, mode: Option<Mode>, between: bool) {
+        let was_blocks = self.now.last > 0;
         self.mode = mode;
         let (gp, dec) = match mode {
             Some(Mode::Sve) => (&self.p.guard_sve, self.p.dec_sve),
@@ -1183,6 +1214,21 @@ impl<T: SineTable> Controller<T> {
                 && matches!(self.p.sve.regressor, SveRegressor::Decoupled),
             sve_fast: false,
         };
+        // The block count across a change between blocks and blocks of one (`handed`): the
+        // blocks stop with the samples handed so far carried (up to this step, or through the
+        // last one when between steps); they start again from the clock's next step when
+        // between steps (`block_due` before it advances the clock, which blocks of one keep
+        // at 0), or from this step's.
+        let blocks = self.now.last > 0;
+        let here = self.tick.wrapping_add(u32::from(between));
+        if was_blocks && !blocks {
+            self.carry = self.handed(here);
+            self.block_from = 0;
+            self.unfed = 0;
+        } else if !was_blocks && blocks {
+            self.block_from = here;
+            self.unfed = 0;
+        }
         // The input check's steady path keeps the last `spike` (`Guard::leave_steady`); the
         // general path computes the same.
         self.guard.leave_steady();
@@ -1325,7 +1371,10 @@ impl<T: SineTable> Controller<T> {
             // The usual paths, dispatched by one byte (the same steps as through the mode's
             // and the phase's below).
             Hot::DiveDwell => {
-                self.dive.t = self.dive.t.saturating_add(1);
+                // The general path's saturating add, as a wrapping one: here t < u32::MAX
+                // (`update_hot` takes this path only from t < u32::MAX, and a dwell ends once
+                // t ≥ dwell_end, so every later sample of it starts below dwell_end).
+                self.dive.t = self.dive.t.wrapping_add(1);
                 let t = self.dive.t;
                 let u = self.dive_dwell(t, d, z, input_ok, &mut st, sink, &mut fed);
                 if !fed {
@@ -1334,7 +1383,10 @@ impl<T: SineTable> Controller<T> {
                 u
             }
             Hot::SvePass => {
-                self.sve.t = self.sve.t.saturating_add(1);
+                // As the dwell's: a pass's sample on this path starts at t < next_boundary
+                // (`sve_fast` is kept only by a sample before the pixel's boundary, and cleared
+                // at it, with `next_boundary` and t set anew only where `sve_fast` is cleared).
+                self.sve.t = self.sve.t.wrapping_add(1);
                 let t = self.sve.t;
                 let u = self.sve_contact::<true>(t, d, z, input_ok, &mut st, sink, &mut fed);
                 if !fed {
@@ -1342,7 +1394,12 @@ impl<T: SineTable> Controller<T> {
                 }
                 u
             }
-            Hot::Stopped => self.u,
+            Hot::Stopped => {
+                // No sample handed over (see `block_from`; with blocks of one the count is
+                // not read, and is cleared where the blocks start again, `set_mode`).
+                self.unfed = self.unfed.wrapping_add(1);
+                self.u
+            }
             Hot::None => match self.mode {
                 Some(Mode::Dive) => {
                     let u = self.dive_step(d, z, input_ok, &mut st, sink, &mut fed);
@@ -1358,7 +1415,11 @@ impl<T: SineTable> Controller<T> {
                     }
                     u
                 }
-                None => self.u,
+                // Unreachable: no mode is `Hot::Stopped` (`update_hot`).
+                None => {
+                    self.unfed = self.unfed.wrapping_add(1);
+                    self.u
+                }
             },
         };
         let (u_code, u, clamped) = self.p.u_dac.quantize(u_next);
@@ -1427,7 +1488,12 @@ impl<T: SineTable> Controller<T> {
     /// takes samples between restarts: the target's.
     #[inline(always)]
     fn closing_block(&mut self) -> Option<Block<T>> {
-        if self.block_n == 0 {
+        // The closed block's samples handed over since its start or its last restart.
+        let n = self.handed(self.closed_steps);
+        self.block_from = 0;
+        self.unfed = 0;
+        self.carry = 0;
+        if n == 0 {
             return None;
         }
         let b = Block {
@@ -1436,10 +1502,9 @@ impl<T: SineTable> Controller<T> {
             epoch: self.epoch,
             target: self.target,
             skip: self.skip_n,
-            samples: self.block_n,
+            samples: n,
         };
         self.skip_n = 0;
-        self.block_n = 0;
         Some(b)
     }
 
@@ -1453,8 +1518,18 @@ impl<T: SineTable> Controller<T> {
         self.target = target;
         // The block's samples so far are discarded: the task skips them, the host's sums
         // start again.
-        self.skip_n = self.skip_n.wrapping_add(self.block_n);
-        self.block_n = 0;
+        // This step's sample, handed over after the restart, is the block's own (`tick`:
+        // this step's clock, set by `block_due`).
+        // With blocks of one nothing is handed over: only the carried samples.
+        let handed = if self.now.last > 0 {
+            self.handed(self.tick)
+        } else {
+            self.carry
+        };
+        self.skip_n = self.skip_n.wrapping_add(handed);
+        self.block_from = self.tick;
+        self.unfed = 0;
+        self.carry = 0;
         self.host_sums.clear();
         self.pending_restart = Some(theta0);
         self.pending_watch = true;
@@ -1508,7 +1583,6 @@ impl<T: SineTable> Controller<T> {
             r,
             flags,
         });
-        self.block_n = self.block_n.wrapping_add(1);
         status::ESTIMATING | self.adopted
     }
 
@@ -1819,7 +1893,7 @@ impl<T: SineTable> Controller<T> {
         s.acc.clear();
         if s.tap >= p.taps {
             self.set_phase(Phase::Done);
-            self.set_mode(None);
+            self.set_mode(None, false);
             return;
         }
         let ix = s.tap % p.nx;
@@ -1898,7 +1972,7 @@ impl<T: SineTable> Controller<T> {
                 self.sve.u_cmd = u;
                 if u >= self.sve.z0 + self.p.clearance || u >= self.p.u_start {
                     self.set_phase(Phase::Done);
-                    self.set_mode(None);
+                    self.set_mode(None, false);
                 }
                 // Let the excitation ramp out while retracting.
                 u + self.exc.next(&self.p.sve.exc)

@@ -247,3 +247,70 @@ fn firmware_schedule_matches_step_bit_for_bit() {
 fn ctrl_done(c: &Controller<f32>) -> bool {
     c.phase() == Phase::Done
 }
+
+/// The block headers' counts (`skip + samples`, derived from the block clock, not counted per
+/// sample) equal the samples the sink holds at every close, also when the modes' block
+/// lengths differ, one of them blocks of one (no sample handed over, the clock standing), and
+/// commands switch between them in the middle of blocks, of taps and of restarts.
+#[test]
+fn block_counts_follow_the_sink_across_modes_of_other_block_lengths() {
+    use std::collections::VecDeque;
+    let h = 120e-9;
+    for (dec_dive, dec_sve) in [(1, 32), (32, 1), (16, 40), (64, 64)] {
+        let mut cfg = Config::paper(FS);
+        cfg.dive.nx = 2;
+        cfg.dive.ny = 1;
+        cfg.dive.estimator.decimation = dec_dive;
+        cfg.sve.estimator.decimation = dec_sve;
+        cfg.sve.lines = 1;
+        cfg.sve.pixels = 10;
+        cfg.sve.line_period_s = 0.1;
+        let mut fw = Controller::<f32>::new(&cfg).unwrap();
+        let mut plant = AggregatePlant::paper(K, C, h, 1.0 / FS);
+        plant.settle_at(cfg.approach.u_start_m / units::LENGTH);
+        let mut queue: VecDeque<u32> = VecDeque::new();
+        let (mut blocks, mut skipped) = (0u32, 0u32);
+        let mut d = 0.0f32;
+        // Commands mid-block and mid-run: SVE, a stop, DIVE, SVE again, two commands between
+        // the same two steps, DIVE to the end.
+        let commands: &[(usize, &[Command])] = &[
+            (0, &[Command::Start(Mode::Sve)]),
+            (40_013, &[Command::Stop]),
+            (40_101, &[Command::Start(Mode::Dive)]),
+            (90_007, &[Command::Start(Mode::Sve)]),
+            (140_003, &[Command::Stop, Command::Start(Mode::Dive)]),
+        ];
+        for i in 0..260_000usize {
+            for (at, cmds) in commands {
+                if *at == i {
+                    for c in *cmds {
+                        fw.command(*c);
+                    }
+                }
+            }
+            if fw.block_due() {
+                fw.close_block(|b| {
+                    assert_eq!(
+                        (b.skip + b.samples) as usize,
+                        queue.len(),
+                        "decimation {dec_dive}/{dec_sve}: block {blocks} at step {i}"
+                    );
+                    assert!(
+                        b.samples >= 1,
+                        "decimation {dec_dive}/{dec_sve}: empty block"
+                    );
+                    skipped += b.skip;
+                    queue.clear();
+                    blocks += 1;
+                });
+            }
+            let out = fw.step_loop_m(d, &mut |_| queue.push_back(0));
+            d = (plant.step(out.u_m as f64 / units::LENGTH) * units::LENGTH) as f32;
+        }
+        println!("decimation {dec_dive}/{dec_sve}: {blocks} blocks, {skipped} samples discarded");
+        assert!(
+            blocks > 1000,
+            "decimation {dec_dive}/{dec_sve}: only {blocks} blocks"
+        );
+    }
+}
