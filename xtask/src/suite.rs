@@ -222,6 +222,13 @@ pub fn refsim_tests() -> Result<()> {
         "target/refsim-ci-wave",
         &["--interference", "--classes", "clean,adhesion"],
     )?;
+    // A clean tap whose tones reach the lever as a smooth command (1 MHz): the nominal must
+    // follow it between the samples (the line's low-pass once stood in for f₀ and Q there).
+    let smooth_s = refsim_generate(
+        &py,
+        "target/refsim-ci-smooth",
+        &["--classes", "clean", "--first-seed", "17"],
+    )?;
     cargo_env(
         &[
             "test",
@@ -236,6 +243,7 @@ pub fn refsim_tests() -> Result<()> {
         &[
             ("VISCO_REFSIM_DIR", &dir_s),
             ("VISCO_REFSIM_WAVE_DIR", &wave_s),
+            ("VISCO_REFSIM_SMOOTH_DIR", &smooth_s),
         ],
     )
 }
