@@ -2,6 +2,10 @@
 //! oracle: the least-squares solution of the normal equations, solved by Gaussian
 //! elimination in f64, for the prior (θ̂₀, P₀) and the block's weighted samples.
 
+// The oracle's elimination and products index rows and columns together, as the textbook
+// writes them; iterators would hide the algebra it is checked against.
+#![allow(clippy::needless_range_loop)]
+
 use visco_core::estimator::{BlockStats, Estimator, EstimatorKind, EstimatorParams};
 
 const T_US: f64 = 1.0;

@@ -78,6 +78,8 @@ pub struct SweepPoint {
     pub block_samples: u32,
 }
 
+// One field per argument of the row it builds; a struct for them would be the row again.
+#[allow(clippy::too_many_arguments)]
 fn point(
     period_s: f64,
     pixels: usize,
