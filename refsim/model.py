@@ -557,15 +557,17 @@ def step(model: Model, drive: Drive, x, t, h, mask, u_held):
             return None
         return x + y
 
-    x1 = run(h)
-    # Halve until the corrector settles (a step of h/2**40 is below any recording's need).
-    for _ in range(40):
-        if x1 is not None and np.all(np.isfinite(x1)):
-            break
-        h = 0.5 * h
-        x1 = run(h)
-    else:
+    def settle(hh, x1):
+        """(x1, hh) if x1 = run(hh) settled, else the first halving of hh that does (a step
+        of hh/2**40 is below any recording's need)."""
+        for _ in range(40):
+            if x1 is not None and np.all(np.isfinite(x1)):
+                return x1, hh
+            hh = 0.5 * hh
+            x1 = run(hh)
         raise FloatingPointError(f"refsim: the step at t = {t:.9g} s does not settle")
+
+    x1, h = settle(h, run(h))
     if True:
         ss = _EVENT_SAMPLES * h
         zs = hermite(x[0], x[1], x1[0], x1[1], h, ss)
@@ -582,19 +584,10 @@ def step(model: Model, drive: Drive, x, t, h, mask, u_held):
             # Past the crossing on the path: the new active set (the bracket's far side).
             new_mask = model.active(hermite(x[0], x[1], x1[0], x1[1], h, hi))
             if hi < h * (1 - 1e-9):
-                x1 = run(hi)
-                h = hi
-                if x1 is None or not np.all(np.isfinite(x1)):
+                x1, h = settle(hi, run(hi))
+                if h < hi:
                     # Short of the crossing, in the present active set; the next step
                     # finds the event again.
-                    for _ in range(40):
-                        h = 0.5 * h
-                        x1 = run(h)
-                        if x1 is not None and np.all(np.isfinite(x1)):
-                            break
-                    else:
-                        raise FloatingPointError(
-                            f"refsim: the step at t = {t:.9g} s does not settle")
                     model.after_step(x1)
                     return x1, t + h, mask
             model.after_step(x1)

@@ -951,6 +951,14 @@ impl Problem {
             .is_none_or(|f0| super::problem::resolves(1.0 / self.dt_us, f0))
     }
 
+    /// How much better on the fit samples one nominal form (a lattice, an input convention)
+    /// must fit to replace another: 3·ln n·σ², a BIC-like margin.
+    fn replace_margin(&self, env: &Env) -> f64 {
+        let sigma = env.noise_m / LENGTH;
+        let n_fit = self.fit.iter().filter(|&&f| f).count().max(2) as f64;
+        3.0 * n_fit.ln() * sigma * sigma
+    }
+
     /// The bed's form (module docs of [`super::model`]): the continuum fit `best`, or a lattice
     /// of discrete elements if one fits the fit samples better by more than its searched
     /// nuisance parameters can by chance. Pitches from R/2 to R/6 (finer lattices are the
@@ -1034,9 +1042,7 @@ impl Problem {
             };
             self.contact_misfit(m, env)
         };
-        let sigma = env.noise_m / LENGTH;
-        let n_fit = self.fit.iter().filter(|&&f| f).count().max(2) as f64;
-        let threshold = 3.0 * n_fit.ln() * sigma * sigma;
+        let threshold = self.replace_margin(env);
         let replaces = |s: f64| s.is_finite() && s < best.0 - threshold;
         // What the usual search chose, should the deeper one replace it: a misfit from an
         // effect also makes the search go deeper, and a lattice found there can stand in for
@@ -1176,10 +1182,7 @@ impl Problem {
                 m.nominal.input = inp;
                 let (s, ev) = self.polish(&mut m, &env0, 15);
                 evaluations += ev;
-                // The bed's rule for one model against another (`choose_bed`).
-                let sigma = env0.noise_m / LENGTH;
-                let n_fit = self.fit.iter().filter(|&&f| f).count().max(2) as f64;
-                if s.is_finite() && s < input_fits[0].0 - 3.0 * n_fit.ln() * sigma * sigma {
+                if s.is_finite() && s < input_fits[0].0 - self.replace_margin(&env0) {
                     progress(&format!(
                         "input between samples on the chosen bed: {}",
                         inp.describe()
