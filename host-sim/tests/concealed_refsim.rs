@@ -275,3 +275,47 @@ fn refsim_smooth_command_is_followed_between_the_samples() {
         r.setup
     );
 }
+
+/// The recording in `VISCO_REFSIM_<var>_DIR` (one refsim recording), diagnosed.
+fn diagnose_one(var: &str) -> (String, Vec<String>) {
+    let dir = std::env::var(var).unwrap_or_else(|_| panic!("{var}: the directory refsim wrote"));
+    let report = run_recordings(
+        std::path::Path::new(&dir),
+        1,
+        &SearchOptions::default(),
+        &|_, _, _| {},
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(report.rows.len(), 1, "one recording expected in {dir}");
+    let r = &report.rows[0];
+    assert!(r.error.is_none(), "{} refused: {:?}", r.setup, r.error);
+    println!("{}: named {:?}", r.setup, r.named);
+    (
+        r.setup.clone(),
+        r.named.iter().map(|n| n.as_str().to_string()).collect(),
+    )
+}
+
+/// Adhesion and surface attraction both hold the tip in contact; only surface attraction
+/// pulls before the touch. refsim's adhesion tap of seed 20 (bonds over the first 2 nm of
+/// indentation, a pull falling over 7.5 nm of separation on the way out, none on the way
+/// in) is fitted as well by surface attraction with its decay length at the 0.1 nm bound —
+/// no pull before the touch at all — within 0.3 of 787 in held-out log-likelihood; it was
+/// named surface attraction. The surface-attraction tap of seed 17 (refsim's van der Waals
+/// form; fitted, a pull decaying over 17 nm before the touch) beats adhesion by ~220. Asserted: each named first by its own name.
+#[test]
+#[ignore = "needs refsim recordings: run by `cargo xtask test` (VISCO_REFSIM_ADHESION_DIR, VISCO_REFSIM_ATTRACTION_DIR)"]
+fn refsim_adhesion_and_surface_attraction_are_told_apart_by_the_approach() {
+    let (setup, named) = diagnose_one("VISCO_REFSIM_ADHESION_DIR");
+    assert_eq!(
+        named.first().map(String::as_str),
+        Some("adhesion"),
+        "{setup}: named {named:?}"
+    );
+    let (setup, named) = diagnose_one("VISCO_REFSIM_ATTRACTION_DIR");
+    assert_eq!(
+        named.first().map(String::as_str),
+        Some("surface-attraction"),
+        "{setup}: named {named:?}"
+    );
+}

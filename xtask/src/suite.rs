@@ -229,6 +229,19 @@ pub fn refsim_tests() -> Result<()> {
         "target/refsim-ci-smooth",
         &["--classes", "clean", "--first-seed", "17"],
     )?;
+    // Attraction in contact and none before it (an adhesion tap, seed 20), and a pull before
+    // the touch (a surface-attraction tap, seed 17): adhesion and surface attraction told
+    // apart by the approach.
+    let adhesion_s = refsim_generate(
+        &py,
+        "target/refsim-ci-adhesion",
+        &["--classes", "adhesion", "--first-seed", "20"],
+    )?;
+    let attraction_s = refsim_generate(
+        &py,
+        "target/refsim-ci-attraction",
+        &["--classes", "surface-attraction", "--first-seed", "17"],
+    )?;
     cargo_env(
         &[
             "test",
@@ -244,6 +257,8 @@ pub fn refsim_tests() -> Result<()> {
             ("VISCO_REFSIM_DIR", &dir_s),
             ("VISCO_REFSIM_WAVE_DIR", &wave_s),
             ("VISCO_REFSIM_SMOOTH_DIR", &smooth_s),
+            ("VISCO_REFSIM_ADHESION_DIR", &adhesion_s),
+            ("VISCO_REFSIM_ATTRACTION_DIR", &attraction_s),
         ],
     )
 }

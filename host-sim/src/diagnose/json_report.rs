@@ -218,6 +218,10 @@ pub struct Candidate {
     pub z: Num,
     pub p_value: Num,
     pub held_out_loglik_gain: Num,
+    /// The held-out log-likelihood gain on the stage's common noise model, on which the
+    /// stage ranks its candidates (with the test's own noise model in
+    /// `held_out_loglik_gain`); the held-out loss gain (nm²) where misfit dominates.
+    pub ranking_gain: Num,
     pub peak_contribution_m: Num,
     pub noise_rms_m: Num,
     pub passed_test: bool,

@@ -380,6 +380,7 @@ impl Diagnosis {
                         z: t.test.z.into(),
                         p_value: t.test.p_value.into(),
                         held_out_loglik_gain: t.test.loglik_gain.into(),
+                        ranking_gain: t.rank_gain.into(),
                         peak_contribution_m: (t.peak() * LENGTH).into(),
                         noise_rms_m: (t.noise_rms * LENGTH).into(),
                         passed_test: t.test.p_value < *level,

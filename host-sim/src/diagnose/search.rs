@@ -150,6 +150,30 @@ pub struct Tested {
     pub rms_where_after: f64,
 }
 
+/// Adhesion and surface attraction share the attraction in contact; what surface attraction
+/// claims beyond it is a pull before the touch (on the approach, and after the tip lets go),
+/// which adhesion has not (`recording.md`: adhesion acts while the tip touches the sample,
+/// surface attraction before contact). So where both pass, surface attraction is named
+/// only if its ranking gain over adhesion's passes the stage's test for that one claim: a
+/// likelihood ratio of one degree of freedom at the stage's level (χ²₁ quantile / 2, 5.4 at
+/// 10⁻³). Otherwise the data show an attraction in contact — adhesion by its definition —
+/// and no pull before it (on refsim's adhesion taps surface attraction's decay length had
+/// gone to its 0.1 nm bound: no pull before the touch at all). Only where the stage's
+/// residuals are noise: where misfit dominates, gains are losses, not likelihoods.
+fn adhesion_unless_the_approach_shows(results: &[Tested], best: usize, level: f64) -> usize {
+    let kind = |t: &Tested| t.model.effects.last().map(|(c, _)| c.kind);
+    if kind(&results[best]) != Some(EffectKind::SurfaceAttraction) {
+        return best;
+    }
+    let margin = 0.5 * super::noise::normal_isf(0.5 * level).powi(2);
+    results
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| kind(t) == Some(EffectKind::Adhesion) && t.passes(level))
+        .find(|(_, t)| t.rank_gain > results[best].rank_gain - margin)
+        .map_or(best, |(i, _)| i)
+}
+
 impl Tested {
     /// The largest |contribution| (nm).
     pub fn peak(&self) -> f64 {
@@ -1438,6 +1462,11 @@ impl Problem {
                 .filter(|(_, t)| t.passes(level))
                 .max_by(|a, b| a.1.rank_gain.total_cmp(&b.1.rank_gain))
                 .map(|(i, _)| i);
+            let best = if dominated {
+                best
+            } else {
+                best.map(|bi| adhesion_unless_the_approach_shows(&results, bi, level))
+            };
             for (i, t) in results.iter().enumerate() {
                 tested.push((stage, t.clone(), Some(i) == best));
             }
