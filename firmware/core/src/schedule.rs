@@ -27,6 +27,9 @@
 
 use crate::controller::status;
 use crate::estimator::{BlockInfo, BlockStats, Estimator, EstimatorParams, UpdateInfo};
+use crate::excitation::{
+    fill_chunk, Ahead, ChunkKey, ExcitationParams, SineTable, ToneSource, RESYNC,
+};
 use crate::guard::{GuardParams, Watch};
 use crate::prefilter::HighPass;
 use crate::real::Real;
@@ -85,7 +88,9 @@ pub const SAMPLE_HP_REST: u32 = 4;
 /// firmware the producer end of a queue to the estimator task, on the host
 /// ([`crate::Controller::step_internal`]) the in-line task's block sums. Closures
 /// `FnMut(Sample<T>)` are sinks.
-pub trait SampleSink<T> {
+/// The sink is also where the excitation finds chunks of tones precomputed by the task
+/// ([`ToneSource`]; a closure has none).
+pub trait SampleSink<T>: ToneSource<T> {
     /// One sample of the block being accumulated, in order.
     fn push(&mut self, s: Sample<T>);
 }
@@ -96,6 +101,8 @@ impl<T, F: FnMut(Sample<T>)> SampleSink<T> for F {
         self(s)
     }
 }
+
+impl<T, F: FnMut(Sample<T>)> ToneSource<T> for F {}
 
 /// One block header, loop → estimator task. The block's samples travel apart, in order,
 /// through a [`SampleSink`]: the header says how many of the samples waiting belong to this
@@ -118,7 +125,40 @@ pub struct Block<T> {
     /// block whose samples did not all fit the queue: its restarts still apply, θ̂ does not
     /// move.
     pub samples: u32,
+    /// The chunks of tones the task computes ahead with this block.
+    pub tones: ToneAhead,
 }
+
+/// The chunks of tones the estimator task computes ahead with a block (issue 14, round 7):
+/// those starting N to 2N − 1 samples after the block's close (N samples: the task's
+/// deadline, as for its result), so that over the blocks every chunk is asked for once.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ToneAhead {
+    /// Where the next chunks start, at the block's close.
+    pub at: Ahead,
+    /// The block length N.
+    pub n: u32,
+    /// The tones: 0 none, [`TONES_DIVE`], [`TONES_SVE`].
+    pub which: u32,
+}
+
+impl ToneAhead {
+    /// No chunks.
+    pub const NONE: Self = Self {
+        at: Ahead {
+            chunk: 0,
+            phase: [0, 0],
+            left: 0,
+        },
+        n: 0,
+        which: 0,
+    };
+}
+
+/// [`ToneAhead::which`]: DIVE's tones.
+pub const TONES_DIVE: u32 = 1;
+/// [`ToneAhead::which`]: SVE's tones.
+pub const TONES_SVE: u32 = 2;
 
 impl<T> Block<T> {
     /// Which estimator the block is for.
@@ -222,6 +262,10 @@ pub struct TaskParams<T> {
     pub reg: RegressorParams<T>,
     /// The SVE high-passes' pole factor.
     pub highpass: T,
+    /// DIVE's tones (the chunks computed ahead).
+    pub exc_dive: ExcitationParams<T>,
+    /// SVE's tones.
+    pub exc_sve: ExcitationParams<T>,
 }
 
 /// The estimators and their divergence watch: what the lower-priority task owns.
@@ -668,5 +712,36 @@ impl<T: Real> EstimatorTask<T> {
         let info = self.est3.update(p, w, phi);
         let e = self.est3.last_error();
         est_flags(info) | self.watch(target, info, e, w, false)
+    }
+}
+
+impl<T: SineTable> EstimatorTask<T> {
+    /// The chunks of tones the block's header asks for ([`ToneAhead`]: those starting N to
+    /// 2N − 1 samples after the close; none, one or two), in order: `f` gets each one's key
+    /// and the tones' constants, to fill a chunk with [`fill_chunk`] (or [`Self::fill`]).
+    #[inline(always)]
+    pub fn tones_ahead(
+        &self,
+        a: &ToneAhead,
+        mut f: impl FnMut(&ChunkKey<T>, &ExcitationParams<T>),
+    ) {
+        let p = match a.which {
+            TONES_DIVE => &self.p.exc_dive,
+            TONES_SVE => &self.p.exc_sve,
+            _ => return,
+        };
+        // Chunk m + 1 after the current one starts left + m·RESYNC samples after the close.
+        let (n, left) = (a.n.min(64), a.at.left.min(RESYNC));
+        let mut m = n.saturating_sub(left).div_ceil(RESYNC);
+        while left + m * RESYNC < 2 * n {
+            f(&a.at.key(m, p), p);
+            m += 1;
+        }
+    }
+
+    /// [`fill_chunk`] (for the task's callers that do not hold the constants).
+    #[inline(always)]
+    pub fn fill(p: &ExcitationParams<T>, key: &ChunkKey<T>, out: &mut [T; RESYNC as usize]) {
+        fill_chunk(p, key, out)
     }
 }
