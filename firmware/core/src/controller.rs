@@ -919,6 +919,12 @@ impl<T: SineTable> Controller<T> {
             sve_blocks: false,
             sve_fast: false,
         };
+        // The sums' strides (1 without blocks: every sample is the block).
+        let (sdi, ssi) = (
+            d.estimator.stride_in_blocks(),
+            s.estimator.stride_in_blocks(),
+        );
+        let (sd, ss) = (f64::from(sdi), f64::from(ssi));
         let task = EstimatorTask::new(
             TaskParams {
                 dive2: d.estimator.params(fs, u_span),
@@ -927,9 +933,19 @@ impl<T: SineTable> Controller<T> {
                 sve3: s.estimator.params(fs, u_span),
                 guard_dive: p.guard_dive,
                 guard_sve: p.guard_sve,
-                // 1/T and α/T of the loop period: a block sample's weight T/m².
-                acc_dive: (t(1.0 / period_us), t(d.estimator.alpha / period_us)),
-                acc_sve: (t(1.0 / period_us), t(s.estimator.alpha / period_us)),
+                // 1/T and α/T of the loop period: a block sample's weight T/m²; with a
+                // stride of the sums, of `stride` loop periods (one sample in the sums for
+                // `stride` of the block's: the same information per unit time).
+                acc_dive: (
+                    t(1.0 / (period_us * sd)),
+                    t(d.estimator.alpha / (period_us * sd)),
+                ),
+                acc_sve: (
+                    t(1.0 / (period_us * ss)),
+                    t(s.estimator.alpha / (period_us * ss)),
+                ),
+                stride_mask_dive: sdi - 1,
+                stride_mask_sve: ssi - 1,
                 reg: p.reg,
                 highpass: p.sve.highpass,
                 exc_dive: p.dive.exc,
@@ -1335,9 +1351,14 @@ impl<T: SineTable> Controller<T> {
         let out = self.step_loop(d_nm, &mut |x| handed = Some(x));
         // The step hands its sample over after any restart in it, so it is the block's.
         if let Some(x) = handed {
+            // Its place among the block's samples (from the block's start or its restart).
+            let j = self.host_sums.seen;
+            self.host_sums.seen = j.wrapping_add(1);
             if let Some((w, phi)) = self.task.feed(&x) {
-                let acc = self.task.acc(self.target);
-                self.host_sums.add(self.target, acc, w, &phi);
+                if j & self.task.stride_mask(self.target) == 0 {
+                    let acc = self.task.acc(self.target);
+                    self.host_sums.add(self.target, acc, w, &phi);
+                }
             }
         }
         out

@@ -178,6 +178,8 @@ pub struct BlockSums<T> {
     pub s3: BlockStats<T, 3>,
     /// Estimating samples added.
     pub n: u32,
+    /// The block's samples seen (estimating or not): the next one's place in the block.
+    pub seen: u32,
 }
 
 impl<T: Real> Default for BlockSums<T> {
@@ -186,6 +188,7 @@ impl<T: Real> Default for BlockSums<T> {
             s2: BlockStats::default(),
             s3: BlockStats::default(),
             n: 0,
+            seen: 0,
         }
     }
 }
@@ -220,6 +223,7 @@ impl<T: Real> BlockSums<T> {
         self.s2.clear();
         self.s3.clear();
         self.n = 0;
+        self.seen = 0;
     }
 }
 
@@ -266,6 +270,10 @@ pub struct TaskParams<T> {
     pub exc_dive: ExcitationParams<T>,
     /// SVE's tones.
     pub exc_sve: ExcitationParams<T>,
+    /// DIVE: every `mask + 1`-th sample of a block into the sums (`EstimatorConfig::stride`).
+    pub stride_mask_dive: u32,
+    /// SVE: the same.
+    pub stride_mask_sve: u32,
 }
 
 /// The estimators and their divergence watch: what the lower-priority task owns.
@@ -453,6 +461,16 @@ impl<T: Real> EstimatorTask<T> {
         }
     }
 
+    /// The stride of the information sums less one (a mask: the stride is a power of two):
+    /// the block's sample `j` (from 0, its own samples) goes into the sums when `j & mask` is 0.
+    #[inline(always)]
+    pub fn stride_mask(&self, target: Target) -> u32 {
+        match target {
+            Target::Dive2 | Target::Dive3 => self.p.stride_mask_dive,
+            Target::Sve2 | Target::Sve3 => self.p.stride_mask_sve,
+        }
+    }
+
     /// One block (the reference form; the firmware runs [`Self::run_in_place`]): `samples`
     /// yields the samples handed over for it in order, first the `b.skip` to
     /// discard (they only feed the filters), then the block's `b.samples` (the estimating
@@ -470,6 +488,7 @@ impl<T: Real> EstimatorTask<T> {
         let mut samples = samples.take(b.skip.wrapping_add(b.samples) as usize);
         let target = b.target;
         let (ip, ai) = self.acc(target);
+        let mask = self.stride_mask(target);
         let p = &self.p;
         let mut n = 0u32;
         if target.two() {
@@ -479,10 +498,12 @@ impl<T: Real> EstimatorTask<T> {
                 feed_filters(p, &mut reg, &mut hp, &x);
             }
             let mut s = BlockStats::<T, 2>::default();
-            for x in samples {
+            for (j, x) in samples.enumerate() {
                 if let Some((w, phi)) = feed_filters(p, &mut reg, &mut hp, &x) {
-                    s.add(ip, ai, w, &[phi[0], phi[1]]);
-                    n += 1;
+                    if j as u32 & mask == 0 {
+                        s.add(ip, ai, w, &[phi[0], phi[1]]);
+                        n += 1;
+                    }
                 }
             }
             (self.reg, self.hp) = (reg, hp);
@@ -503,10 +524,12 @@ impl<T: Real> EstimatorTask<T> {
                 feed_filters(p, reg, hp, &x);
             }
             let mut s = BlockStats::<T, 3>::default();
-            for x in samples {
+            for (j, x) in samples.enumerate() {
                 if let Some((w, phi)) = feed_filters(p, reg, hp, &x) {
-                    s.add(ip, ai, w, &phi);
-                    n += 1;
+                    if j as u32 & mask == 0 {
+                        s.add(ip, ai, w, &phi);
+                        n += 1;
+                    }
                 }
             }
             let s = core::hint::black_box(s);
@@ -540,6 +563,9 @@ impl<T: Real> EstimatorTask<T> {
         let skip = b.skip as usize;
         let target = b.target;
         let (ip, ai) = self.acc(target);
+        let mask = self.stride_mask(target);
+        // At least 1 (`step_by` of 0 would panic; the mask is below 8).
+        let stride = (mask as usize).wrapping_add(1).max(1);
         let p = &self.p;
         // The prefilters: every sample; a flagged one's w, φ₁, φ₂ over its slot.
         let mut reg = self.reg;
@@ -572,15 +598,27 @@ impl<T: Real> EstimatorTask<T> {
                 for x in head {
                     high_pass(a, &mut hp, x);
                 }
-                for x in own {
-                    if let Some((w, phi)) = high_pass(a, &mut hp, x) {
-                        s.add(ip, ai, w, &phi);
-                        n += 1;
+                if mask == 0 {
+                    // Every sample (the loop without the stride's test).
+                    for x in own {
+                        if let Some((w, phi)) = high_pass(a, &mut hp, x) {
+                            s.add(ip, ai, w, &phi);
+                            n += 1;
+                        }
+                    }
+                } else {
+                    for (j, x) in own.iter().enumerate() {
+                        if let Some((w, phi)) = high_pass(a, &mut hp, x) {
+                            if j as u32 & mask == 0 {
+                                s.add(ip, ai, w, &phi);
+                                n += 1;
+                            }
+                        }
                     }
                 }
                 self.hp = hp;
             } else {
-                for x in own {
+                for x in own.iter().step_by(stride) {
                     if x.flags & SAMPLE_EST != 0 {
                         s.add(ip, ai, x.z, &[x.u, x.r]);
                         n += 1;
@@ -599,15 +637,27 @@ impl<T: Real> EstimatorTask<T> {
                 for x in head {
                     high_pass(a, &mut hp, x);
                 }
-                for x in own {
-                    if let Some((w, phi)) = high_pass(a, &mut hp, x) {
-                        s.add(ip, ai, w, &[phi[0], phi[1], T::ONE]);
-                        n += 1;
+                if mask == 0 {
+                    // Every sample (the loop without the stride's test).
+                    for x in own {
+                        if let Some((w, phi)) = high_pass(a, &mut hp, x) {
+                            s.add(ip, ai, w, &[phi[0], phi[1], T::ONE]);
+                            n += 1;
+                        }
+                    }
+                } else {
+                    for (j, x) in own.iter().enumerate() {
+                        if let Some((w, phi)) = high_pass(a, &mut hp, x) {
+                            if j as u32 & mask == 0 {
+                                s.add(ip, ai, w, &[phi[0], phi[1], T::ONE]);
+                                n += 1;
+                            }
+                        }
                     }
                 }
                 self.hp = hp;
             } else {
-                for x in own {
+                for x in own.iter().step_by(stride) {
                     if x.flags & SAMPLE_EST != 0 {
                         s.add(ip, ai, x.z, &[x.u, x.r, T::ONE]);
                         n += 1;
