@@ -16,8 +16,9 @@ use heapless::spsc::{Consumer, Queue};
 use visco_firmware::core_glue::BlockResult;
 use visco_firmware::core_glue::{self, CoreCommand, LoopCore, StagedConfig};
 use visco_firmware::loop_body::{
-    BlockBuf, CommandSlot, Counters, EstimatorState, Item, QueueLink, SampleBlock, BLOCK_BUFFERS,
-    BUFFER_SLOTS, ESTIMATOR_DEPTH, TELEMETRY_DEPTH,
+    BlockBuf, CommandSlot, Counters, EstimatorState, Item, QueueLink, SampleBlock, ToneBuf,
+    ToneLink, TonePrep, BLOCK_BUFFERS, BUFFER_SLOTS, ESTIMATOR_DEPTH, TELEMETRY_DEPTH, TONE_CHUNKS,
+    TONE_SLOTS,
 };
 use visco_protocol::{
     ack, frame, param, Command, ConfigRejectedFrame, FrameDecoder, PerSample, SeqTracker,
@@ -256,6 +257,22 @@ pub fn run() -> ! {
     for b in rest {
         let _ = free_tx.enqueue(b);
     }
+    // The chunks of tones: computed ahead by the task, read by the loop (one it holds, the
+    // others start free).
+    let (Some(chunks), Some(ready), Some(tfree)) = (
+        cortex_m::singleton!(: [core_glue::ToneChunk; TONE_CHUNKS] =
+            [core_glue::ToneChunk::new(<core_glue::Number as visco_core::Real>::ZERO); TONE_CHUNKS]),
+        cortex_m::singleton!(: Queue<ToneBuf<'static>, TONE_SLOTS> = Queue::new()),
+        cortex_m::singleton!(: Queue<ToneBuf<'static>, TONE_SLOTS> = Queue::new()),
+    ) else {
+        board::fatal(11)
+    };
+    let (ready_tx, ready_rx) = ready.split();
+    let (mut tfree_tx, tfree_rx) = tfree.split();
+    let [held, rest @ ..] = chunks;
+    for c in rest {
+        let _ = tfree_tx.enqueue(c);
+    }
     let link = QueueLink::new(
         stage,
         block_tx,
@@ -263,6 +280,7 @@ pub fn run() -> ! {
         result_rx,
         board::pend_estimator,
         &COUNTERS,
+        ToneLink::new(held, ready_rx, tfree_tx),
     );
     let state = board::make_loop(&mut b, adc, core, link, tel_tx, &COMMANDS, &COUNTERS);
     board::mask_estimator();
@@ -273,6 +291,7 @@ pub fn run() -> ! {
             blocks: block_rx,
             free: free_tx,
             results: result_tx,
+            tones: TonePrep::new(ready_tx, tfree_rx),
         })
     };
     board::unmask_estimator();

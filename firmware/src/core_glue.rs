@@ -38,7 +38,12 @@ pub type ConfigError = visco_core::ConfigError;
 pub type Block = visco_core::schedule::Block<Number>;
 /// One sample for the estimator task, its regressor's raw inputs (loop → estimator interrupt).
 pub type Sample = visco_core::schedule::Sample<Number>;
+pub use visco_core::excitation::ToneSource;
 pub use visco_core::schedule::SampleSink;
+/// A chunk of tones computed ahead by the estimator task (estimator interrupt → loop).
+pub type ToneChunk = visco_core::excitation::ToneChunk<Number>;
+/// What identifies a chunk of tones.
+pub type ChunkKey = visco_core::excitation::ChunkKey<Number>;
 /// The estimator task's result (estimator interrupt → loop).
 pub type BlockResult = visco_core::schedule::BlockResult<Number>;
 /// The estimator task, run by the lower-priority estimator interrupt.

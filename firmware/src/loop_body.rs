@@ -9,8 +9,8 @@
 //! count into a gap in the frame sequence numbers, so the host sees the loss too.
 
 use crate::core_glue::{
-    Block, BlockResult, CoreCommand, EstimatorTask, LoopCore, LoopReal, Mode, Number, Sample,
-    SampleSink, RECORD_READY,
+    Block, BlockResult, ChunkKey, CoreCommand, EstimatorTask, LoopCore, LoopReal, Mode, Number,
+    Sample, SampleSink, ToneChunk, ToneSource, RECORD_READY,
 };
 use core::sync::atomic::{AtomicU32, AtomicU8, Ordering};
 use heapless::spsc::Consumer;
@@ -63,6 +63,10 @@ pub struct Counters {
     /// they belong to is handed over without information: its samples only feed the filters,
     /// its restarts apply, and θ̂ stays.
     pub samples_dropped: AtomicU32,
+    /// Chunks of tones the estimator task had not computed when they began (the start of a
+    /// mode, a late task, a chunk the task had no free buffer for): the loop ran its own
+    /// oscillators for them, with the same values.
+    pub tones_late: AtomicU32,
 }
 
 impl Counters {
@@ -75,6 +79,7 @@ impl Counters {
             estimator_late: AtomicU32::new(0),
             blocks_dropped: AtomicU32::new(0),
             samples_dropped: AtomicU32::new(0),
+            tones_late: AtomicU32::new(0),
         }
     }
 }
@@ -101,6 +106,125 @@ pub const BUFFER_SLOTS: usize = 8;
 /// A block's samples after a restart and those before it to discard are one window of the
 /// sample clock, so they fit too.
 pub const BLOCK_MAX: usize = 64;
+
+/// Chunks of tones in circulation ([`ToneChunk`], issue 14, round 7): the one the loop reads
+/// and those the task computed ahead (one or two per block, two blocks ahead at most) or
+/// holds free.
+pub const TONE_CHUNKS: usize = 6;
+
+/// Slots of the queues that move chunks of tones (task → loop ready, loop → task free): a
+/// power of two holding every chunk.
+pub const TONE_SLOTS: usize = 8;
+
+/// A chunk of tones, owned by whichever side holds the reference.
+pub type ToneBuf<'a> = &'a mut ToneChunk;
+
+/// The loop's end of the chunks of tones: the chunk it reads, the ready ones (in order) and
+/// the free ones back. At a chunk's first sample the excitation asks for the chunk of its
+/// key ([`ToneSource::take_tones`]): the ready ones before it (stale: a mode changed its
+/// tones, or a chunk the excitation never reached) are handed back free, the one for it
+/// taken (and the one read before handed back); none: the loop runs its oscillators for this
+/// chunk (counted, `tones_late`).
+pub struct ToneLink<'a, 'b> {
+    /// The chunk being read.
+    cur: ToneBuf<'b>,
+    /// Task → loop, chunks computed.
+    pub ready: Consumer<'a, ToneBuf<'b>>,
+    /// Loop → task, chunks read.
+    pub free: Producer<'a, ToneBuf<'b>>,
+}
+
+impl<'a, 'b> ToneLink<'a, 'b> {
+    /// The loop's end, holding `cur` (its key matches no chunk).
+    pub fn new(
+        cur: ToneBuf<'b>,
+        ready: Consumer<'a, ToneBuf<'b>>,
+        free: Producer<'a, ToneBuf<'b>>,
+    ) -> Self {
+        cur.key.chunk = 0;
+        Self { cur, ready, free }
+    }
+
+    /// [`ToneSource::take_tones`]: the ready chunk for `key` taken (true), the stale ones
+    /// before it handed back free.
+    #[inline(always)]
+    pub fn take(&mut self, key: &ChunkKey) -> bool {
+        while let Some(c) = self.ready.peek() {
+            if c.key.chunk.wrapping_sub(key.chunk) as i32 > 0 {
+                // Ahead of this chunk: this one was not computed.
+                break;
+            }
+            let hit = c.key == *key;
+            let Some(c) = self.ready.dequeue() else { break };
+            if hit {
+                let read = core::mem::replace(&mut self.cur, c);
+                // Cannot be full: the queue holds every chunk.
+                let _ = self.free.enqueue(read);
+                return true;
+            }
+            // Stale: handed back.
+            let _ = self.free.enqueue(c);
+        }
+        false
+    }
+
+    /// [`ToneSource::tone`]: the value of the chunk being read.
+    #[inline(always)]
+    pub fn tone(&self, left: u32) -> Number {
+        let i = (left & (visco_core::excitation::RESYNC - 1)) as usize;
+        // i < RESYNC, the array's length: no bounds test.
+        self.cur.values[i]
+    }
+
+    /// Hands every ready chunk back (a new core: thread mode, both interrupts masked).
+    pub fn reset(&mut self) {
+        while let Some(c) = self.ready.dequeue() {
+            let _ = self.free.enqueue(c);
+        }
+        self.cur.key.chunk = 0;
+    }
+}
+
+/// The task's end of the chunks of tones: free ones in, computed ones out, and the next chunk
+/// count it has not computed (a chunk asked for again, while the tones stand still, is not
+/// computed twice).
+pub struct TonePrep<'a, 'b> {
+    /// Task → loop, chunks computed.
+    pub ready: Producer<'a, ToneBuf<'b>>,
+    /// Loop → task, chunks read.
+    pub free: Consumer<'a, ToneBuf<'b>>,
+    /// The first chunk count not computed yet.
+    pub next: u32,
+}
+
+impl<'a, 'b> TonePrep<'a, 'b> {
+    /// The task's end.
+    pub fn new(ready: Producer<'a, ToneBuf<'b>>, free: Consumer<'a, ToneBuf<'b>>) -> Self {
+        Self {
+            ready,
+            free,
+            next: 1,
+        }
+    }
+
+    /// The chunks a block's header asks for, each into a free chunk and queued ready.
+    #[inline(always)]
+    pub fn run(&mut self, task: &EstimatorTask, header: &Block) {
+        task.tones_ahead(&header.tones, |key, p| {
+            // Wrapping order: a chunk at or after `next`.
+            if (key.chunk.wrapping_sub(self.next) as i32) < 0 {
+                return;
+            }
+            self.next = key.chunk.wrapping_add(1);
+            if let Some(c) = self.free.dequeue() {
+                c.key = *key;
+                EstimatorTask::fill(p, key, &mut c.values);
+                // Cannot be full: the queue holds every chunk.
+                let _ = self.ready.enqueue(c);
+            }
+        });
+    }
+}
 
 /// One block handed over whole, loop → estimator task: its header and its samples (the
 /// `skip` to discard first, then the block's own). The buffers circulate by reference (a
@@ -129,6 +253,7 @@ impl SampleBlock {
                 target: visco_core::schedule::Target::Dive2,
                 skip: 0,
                 samples: 0,
+                tones: visco_core::schedule::ToneAhead::NONE,
             },
             n: 0,
             samples: [Sample {
@@ -197,6 +322,8 @@ pub struct QueueLink<'a, 'b> {
     pub counters: &'a Counters,
     /// Samples that did not fit the staged buffer since the last header.
     lost: u32,
+    /// The chunks of tones from the task.
+    pub tones: ToneLink<'a, 'b>,
 }
 
 impl<'a, 'b> QueueLink<'a, 'b> {
@@ -209,6 +336,7 @@ impl<'a, 'b> QueueLink<'a, 'b> {
         results: Consumer<'a, BlockResult>,
         pend: fn(),
         counters: &'a Counters,
+        tones: ToneLink<'a, 'b>,
     ) -> Self {
         stage.n = 0;
         Self {
@@ -219,6 +347,7 @@ impl<'a, 'b> QueueLink<'a, 'b> {
             pend,
             counters,
             lost: 0,
+            tones,
         }
     }
 }
@@ -238,6 +367,22 @@ impl SampleSink<Number> for QueueLink<'_, '_> {
                 bump(&self.counters.samples_dropped);
             }
         }
+    }
+}
+
+impl ToneSource<Number> for QueueLink<'_, '_> {
+    /// Once per chunk (`RESYNC` samples), at its first sample.
+    #[inline(always)]
+    fn take_tones(&mut self, key: &ChunkKey) -> bool {
+        if self.tones.take(key) {
+            return true;
+        }
+        bump(&self.counters.tones_late);
+        false
+    }
+    #[inline(always)]
+    fn tone(&self, left: u32) -> Number {
+        self.tones.tone(left)
     }
 }
 
@@ -272,6 +417,8 @@ impl EstimatorLink for QueueLink<'_, '_> {
     fn reset(&mut self) {
         self.stage.n = 0;
         self.lost = 0;
+        // Chunks of the old core's tones: handed back.
+        self.tones.reset();
     }
 }
 
@@ -285,6 +432,8 @@ pub struct EstimatorState {
     pub free: Producer<'static, BlockBuf<'static>>,
     /// Estimator → loop, results.
     pub results: Producer<'static, BlockResult>,
+    /// The chunks of tones computed ahead.
+    pub tones: TonePrep<'static, 'static>,
 }
 
 impl EstimatorState {
@@ -296,6 +445,7 @@ impl EstimatorState {
             &mut self.blocks,
             &mut self.free,
             &mut self.results,
+            &mut self.tones,
         );
     }
 
@@ -304,19 +454,23 @@ impl EstimatorState {
         while let Some(b) = self.blocks.dequeue() {
             let _ = self.free.enqueue(b);
         }
+        // A new core's chunks count from 1 again.
+        self.tones.next = 1;
     }
 }
 
 /// Every waiting block, in order: its samples, in its buffer, through the task's filters (the
 /// ones to discard first, then the block's, the estimating ones into the block sums:
 /// `EstimatorTask::run_in_place`, which overwrites them), the block update, the result queued
-/// back, the buffer handed back free.
+/// back, the buffer handed back free; then the chunks of tones the block asks for
+/// ([`TonePrep::run`]).
 #[inline(always)]
 pub fn run_blocks<'b>(
     task: &mut EstimatorTask,
     blocks: &mut Consumer<'_, BlockBuf<'b>>,
     free: &mut Producer<'_, BlockBuf<'b>>,
     results: &mut Producer<'_, BlockResult>,
+    tones: &mut TonePrep<'_, '_>,
 ) {
     while let Some(b) = blocks.dequeue() {
         let header = b.header;
@@ -325,6 +479,7 @@ pub fn run_blocks<'b>(
         // many results as blocks, the queues alike.
         let _ = free.enqueue(b);
         let _ = results.enqueue(r);
+        tones.run(task, &header);
     }
 }
 
@@ -572,6 +727,7 @@ mod tests {
         Option<BlockResult>,
         std::collections::VecDeque<Sample>,
     );
+    impl ToneSource<Number> for Inline {}
     impl SampleSink<Number> for Inline {
         fn push(&mut self, s: Sample) {
             self.2.push_back(s);
@@ -607,7 +763,25 @@ mod tests {
         for b in rest {
             assert!(ftx.enqueue(b).is_ok());
         }
-        let mut link = QueueLink::new(stage, btx, frx, rrx, || {}, &COUNTERS);
+        let chunks: &'static mut [ToneChunk; TONE_CHUNKS] = std::boxed::Box::leak(
+            std::boxed::Box::new([ToneChunk::new(<Number as visco_core::Real>::ZERO); TONE_CHUNKS]),
+        );
+        let (ctx, crx) = leak::<ToneBuf<'static>, TONE_SLOTS>().split();
+        let (mut cftx, cfrx) = leak::<ToneBuf<'static>, TONE_SLOTS>().split();
+        let [held, crest @ ..] = chunks;
+        for c in crest {
+            assert!(cftx.enqueue(c).is_ok());
+        }
+        let mut prep = TonePrep::new(ctx, cfrx);
+        let mut link = QueueLink::new(
+            stage,
+            btx,
+            frx,
+            rrx,
+            || {},
+            &COUNTERS,
+            ToneLink::new(held, crx, cftx),
+        );
         let mut task = build_core(&StagedConfig::new(), None).unwrap().task;
         // What the task should have seen: the same task fed only the blocks handed over.
         let mut alone = task;
@@ -619,6 +793,7 @@ mod tests {
             target: Target::Dive3,
             skip,
             samples,
+            tones: Default::default(),
         };
         let v = |x: f64| <Number as visco_core::Real>::from_f64(x);
         // Samples that differ, so that a sample fed twice, lost or out of order shows in θ̂.
@@ -638,7 +813,7 @@ mod tests {
         assert!(link.send(header(3, 67)));
         let b = brx.peek().unwrap();
         assert_eq!((b.header.skip, b.header.samples, b.n), (64, 0, 64));
-        run_blocks(&mut task, &mut brx, &mut ftx, &mut rtx);
+        run_blocks(&mut task, &mut brx, &mut ftx, &mut rtx, &mut prep);
         let r = link.receive().unwrap();
         assert_eq!((r.flags, r.theta, r.updated), (0, theta0, false));
         alone.run(&header(64, 0), (0..64).map(x));
@@ -655,7 +830,7 @@ mod tests {
                 alone.run(&header(0, 32), (k - 32..k).map(x));
             }
         }
-        run_blocks(&mut task, &mut brx, &mut ftx, &mut rtx);
+        run_blocks(&mut task, &mut brx, &mut ftx, &mut rtx, &mut prep);
         for _ in 0..ESTIMATOR_DEPTH {
             assert!(link.receive().unwrap().updated);
         }
@@ -666,7 +841,7 @@ mod tests {
             k += 1;
         }
         assert!(link.send(header(0, 32)));
-        run_blocks(&mut task, &mut brx, &mut ftx, &mut rtx);
+        run_blocks(&mut task, &mut brx, &mut ftx, &mut rtx, &mut prep);
         let want = alone.run(&header(0, 32), (k - 32..k).map(x));
         let got = link.receive().unwrap();
         assert!(got.updated);

@@ -1480,12 +1480,14 @@ pub const GOAL_SVE: f64 = 200.0;
 /// tested once, the steady input check without its reach store; all bit-identical):
 /// 261 → 225, 345 → 298; and with round 6 (the loop state's cell without its `Option` test,
 /// the block's sample count from the block clock, the dwell's and the pass's clocks by a
-/// wrapping add; all bit-identical): 225 → 214, 298 → 287.6.
-pub const CEILING_DIVE: f64 = 217.0;
+/// wrapping add; all bit-identical): 225 → 214, 298 → 287.6; and with round 7's tones
+/// precomputed per chunk by the estimator task (bit-identical): 214 → 206.2, 287.6 → 280.7.
+pub const CEILING_DIVE: f64 = 209.0;
 /// See [`CEILING_DIVE`].
-pub const CEILING_SVE: f64 = 290.0;
-/// Issue 14: instructions per sample with the estimator interrupt's share (measured 307 / 403
-/// when last set, plus 1 %, after round 6; 318 / 413 after round 5's usual paths; 354 / 460
+pub const CEILING_SVE: f64 = 283.0;
+/// Issue 14: instructions per sample with the estimator interrupt's share (measured 286.4 /
+/// 406.4 when last set, plus 1 %, after round 7: the tones computed by the task (+1.8 / +2.9)
+/// and DIVE's information sums from one sample in 4 (−22.8); 307 / 403 after round 6; 318 / 413 after round 5's usual paths; 354 / 460
 /// after the DIVE force
 /// limit's threshold per tap; 358 / 460 after
 /// the samples were handed over in whole blocks and the task
@@ -1503,9 +1505,9 @@ pub const CEILING_SVE: f64 = 290.0;
 /// operations per sample on both sides, so the average rose while the loop interrupt fell;
 /// 512 / 612 before the copy-free hand-over, 542 / 634 before the cheaper arithmetic), and
 /// that goal (a 1 MHz loop at half of a 400 MHz core).
-pub const CEILING_AVG_DIVE: f64 = 311.0;
+pub const CEILING_AVG_DIVE: f64 = 289.0;
 /// See [`CEILING_AVG_DIVE`].
-pub const CEILING_AVG_SVE: f64 = 407.0;
+pub const CEILING_AVG_SVE: f64 = 410.0;
 /// See [`CEILING_AVG_DIVE`].
 pub const GOAL_AVG: f64 = 200.0;
 
@@ -1652,7 +1654,9 @@ pub const TABLE: [(Machine, Number, Estimator); 8] = [
 /// interrupt in the most expensive window of each mode (the figures measured when set, plus
 /// about 1 %): least squares. Since issue 14 the loop interrupt is the same for both
 /// estimators (it queues the block's samples either way; the estimator interrupt differs).
-/// Measured 859 / 1 608 when last set (least squares; gradient 859 / 1 607), after round 6;
+/// Measured 555 / 1 310 when last set (least squares; gradient 553 / 1 308), after round 7's
+/// tones precomputed per chunk by the estimator task (the Q31.32 table reads left the loop);
+/// 859 / 1 608 (gradient 859 / 1 607) after round 6;
 /// 871 / 1 632 after round 5's usual paths; 910 / 1 682 after the DIVE
 /// force limit's threshold per tap (a comparison where a 64-bit product was); 981 / 1 688
 /// after the samples were handed over in whole blocks; 986 / 1 736 before, after the
@@ -1665,13 +1669,13 @@ pub const TABLE: [(Machine, Number, Estimator); 8] = [
 /// division by 1; 3 903 / 4 776 before the block sums moved to the estimator task; 4 004 /
 /// 4 857 before the copy-free block hand-over and the inlined sequencers; 4 081 / 4 901
 /// before issue 14's read-out sums per block and s²Z/Λ on demand).
-pub const CEILING_Q32_M3_DIVE: f64 = 868.0;
+pub const CEILING_Q32_M3_DIVE: f64 = 562.0;
 /// See [`CEILING_Q32_M3_DIVE`].
-pub const CEILING_Q32_M3_SVE: f64 = 1_625.0;
+pub const CEILING_Q32_M3_SVE: f64 = 1_323.0;
 /// See [`CEILING_Q32_M3_DIVE`]; the gradient estimator.
-pub const CEILING_Q32_M3_GRADIENT_DIVE: f64 = 868.0;
+pub const CEILING_Q32_M3_GRADIENT_DIVE: f64 = 562.0;
 /// See [`CEILING_Q32_M3_DIVE`]; the gradient estimator.
-pub const CEILING_Q32_M3_GRADIENT_SVE: f64 = 1_625.0;
+pub const CEILING_Q32_M3_GRADIENT_SVE: f64 = 1_323.0;
 
 /// Issue 8's accuracy goal: within this % of each property's maximum of the f64 reference.
 pub const FIXED_ERROR_GOAL_PCT: f64 = 0.5;

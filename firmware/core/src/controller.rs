@@ -38,7 +38,7 @@ use crate::prefilter::HighPass;
 use crate::regressor::RegressorParams;
 use crate::schedule::{
     Block, BlockResult, BlockSums, EstimatorTask, Sample, SampleSink, Target, TaskParams,
-    SAMPLE_EST, SAMPLE_HP, SAMPLE_HP_REST,
+    ToneAhead, SAMPLE_EST, SAMPLE_HP, SAMPLE_HP_REST, TONES_DIVE, TONES_SVE,
 };
 use crate::units;
 use core::num::{NonZeroU32, NonZeroU64};
@@ -919,6 +919,12 @@ impl<T: SineTable> Controller<T> {
             sve_blocks: false,
             sve_fast: false,
         };
+        // The sums' strides (1 without blocks: every sample is the block).
+        let (sdi, ssi) = (
+            d.estimator.stride_in_blocks(),
+            s.estimator.stride_in_blocks(),
+        );
+        let (sd, ss) = (f64::from(sdi), f64::from(ssi));
         let task = EstimatorTask::new(
             TaskParams {
                 dive2: d.estimator.params(fs, u_span),
@@ -927,11 +933,23 @@ impl<T: SineTable> Controller<T> {
                 sve3: s.estimator.params(fs, u_span),
                 guard_dive: p.guard_dive,
                 guard_sve: p.guard_sve,
-                // 1/T and α/T of the loop period: a block sample's weight T/m².
-                acc_dive: (t(1.0 / period_us), t(d.estimator.alpha / period_us)),
-                acc_sve: (t(1.0 / period_us), t(s.estimator.alpha / period_us)),
+                // 1/T and α/T of the loop period: a block sample's weight T/m²; with a
+                // stride of the sums, of `stride` loop periods (one sample in the sums for
+                // `stride` of the block's: the same information per unit time).
+                acc_dive: (
+                    t(1.0 / (period_us * sd)),
+                    t(d.estimator.alpha / (period_us * sd)),
+                ),
+                acc_sve: (
+                    t(1.0 / (period_us * ss)),
+                    t(s.estimator.alpha / (period_us * ss)),
+                ),
+                stride_mask_dive: sdi - 1,
+                stride_mask_sve: ssi - 1,
                 reg: p.reg,
                 highpass: p.sve.highpass,
+                exc_dive: p.dive.exc,
+                exc_sve: p.sve.exc,
             },
             p.dive.theta0,
             u,
@@ -1333,9 +1351,14 @@ impl<T: SineTable> Controller<T> {
         let out = self.step_loop(d_nm, &mut |x| handed = Some(x));
         // The step hands its sample over after any restart in it, so it is the block's.
         if let Some(x) = handed {
+            // Its place among the block's samples (from the block's start or its restart).
+            let j = self.host_sums.seen;
+            self.host_sums.seen = j.wrapping_add(1);
             if let Some((w, phi)) = self.task.feed(&x) {
-                let acc = self.task.acc(self.target);
-                self.host_sums.add(self.target, acc, w, &phi);
+                if j & self.task.stride_mask(self.target) == 0 {
+                    let acc = self.task.acc(self.target);
+                    self.host_sums.add(self.target, acc, w, &phi);
+                }
             }
         }
         out
@@ -1503,6 +1526,15 @@ impl<T: SineTable> Controller<T> {
             target: self.target,
             skip: self.skip_n,
             samples: n,
+            tones: ToneAhead {
+                at: self.exc.ahead(),
+                n: self.now.last + 1,
+                which: match self.mode {
+                    Some(Mode::Dive) => TONES_DIVE,
+                    Some(Mode::Sve) => TONES_SVE,
+                    None => 0,
+                },
+            },
         };
         self.skip_n = 0;
         Some(b)
@@ -1680,7 +1712,7 @@ impl<T: SineTable> Controller<T> {
             _ => {}
         }
         self.dive.u_cmd = u;
-        u + self.exc.next(&self.p.dive.exc)
+        u + self.exc.next(&self.p.dive.exc, sink)
     }
 
     /// One DIVE dwell sample (`dive_step`'s phase, and the usual path `Hot::DiveDwell`).
@@ -1700,7 +1732,7 @@ impl<T: SineTable> Controller<T> {
         *st |= status::CONTACT;
         if self.dive_force_limit(d, &mut u, st) {
             self.dive.u_cmd = u;
-            return u + self.exc.next(&self.p.dive.exc);
+            return u + self.exc.next(&self.p.dive.exc, sink);
         }
         if input_ok && t.wrapping_sub(self.dive.fast_from) < self.dive.fast_len {
             // The read-out's steady stretch with blocks (see `DiveState::fast_from`):
@@ -1715,14 +1747,14 @@ impl<T: SineTable> Controller<T> {
             if self.adopted != 0 {
                 self.dive.acc.flags |= self.adopted;
             }
-            return u + self.exc.next(&self.p.dive.exc);
+            return u + self.exc.next(&self.p.dive.exc, sink);
         }
         if input_ok && t.wrapping_sub(self.dive.estimate_from) < self.dive.estimate_len {
             // The estimating stretch before the read-out, with blocks (see
             // `DiveState::estimate_len`): the path below with its tests known.
             *st |= self.feed_block(sink, z, self.dive.r, SAMPLE_EST);
             *fed = true;
-            return u + self.exc.next(&self.p.dive.exc);
+            return u + self.exc.next(&self.p.dive.exc, sink);
         }
         let estimating = input_ok && t >= self.dive.estimate_from;
         let h = self.dive.h;
@@ -1771,7 +1803,7 @@ impl<T: SineTable> Controller<T> {
             }
         }
         self.dive.u_cmd = u;
-        u + self.exc.next(&self.p.dive.exc)
+        u + self.exc.next(&self.p.dive.exc, sink)
     }
 
     /// The DIVE force check (Indent and Dwell): the static force from the low-passed
@@ -1975,7 +2007,7 @@ impl<T: SineTable> Controller<T> {
                     self.set_mode(None, false);
                 }
                 // Let the excitation ramp out while retracting.
-                u + self.exc.next(&self.p.sve.exc)
+                u + self.exc.next(&self.p.sve.exc, sink)
             }
             _ => self.sve.u_cmd,
         }
@@ -2004,7 +2036,7 @@ impl<T: SineTable> Controller<T> {
         let force = self.p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
         self.sve.force_slow += self.p.force_slow_weight * (force - self.sve.force_slow);
         if !FAST && self.sve.lost {
-            return self.sve_reapproach(t, z, st);
+            return self.sve_reapproach(t, z, st, sink);
         }
         *st |= status::CONTACT;
         if force > self.p.guard_sve.force_max {
@@ -2079,7 +2111,7 @@ impl<T: SineTable> Controller<T> {
         if self.sve_sequence::<FAST>(t, [th[0], th[1], h_hat, depth], f) {
             *st |= status::READOUT;
         }
-        u_d + self.exc.next(&self.p.sve.exc)
+        u_d + self.exc.next(&self.p.sve.exc, sink)
     }
 
     /// The surface is gone (a pit, the force limit): excitation out, estimator and depth
@@ -2095,7 +2127,7 @@ impl<T: SineTable> Controller<T> {
     /// One sample of the SVE re-approach: lower the base at the approach speed until the
     /// force is back (then resume with the depth integrator starting where the contact was
     /// found), give up after the approach's travel. The scan and its pixels go on, flagged.
-    fn sve_reapproach(&mut self, t: u32, z: T, st: &mut u32) -> T {
+    fn sve_reapproach(&mut self, t: u32, z: T, st: &mut u32, sink: &mut impl SampleSink<T>) -> T {
         *st |= status::CONTACT_LOST;
         if !self.sve.left {
             // Wait, holding U, until the tip is off the surface (after a force-limit jump the
@@ -2129,7 +2161,7 @@ impl<T: SineTable> Controller<T> {
         if self.sve_sequence::<false>(t, [c, k, h, T::ZERO], status::CONTACT_LOST) {
             *st |= status::READOUT;
         }
-        self.sve.u_cmd + self.exc.next(&self.p.sve.exc)
+        self.sve.u_cmd + self.exc.next(&self.p.sve.exc, sink)
     }
 
     /// The raster: settle, then forward, backward, turn per line; pixel bins along the way.

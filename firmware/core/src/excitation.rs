@@ -150,6 +150,111 @@ pub fn sine<T: SineTable>(phase: u32) -> T {
 /// share falls as its inverse.
 pub const RESYNC: u32 = 32;
 
+/// What identifies a chunk of tones: the excitation's chunk count, the integer phases of
+/// the chunk's first sample and the tones' increments and amplitudes. The chunk's values are
+/// a function of these alone ([`fill_chunk`]), so a chunk precomputed for an equal key holds
+/// exactly the values the loop's own recursion would give.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ChunkKey<T> {
+    /// The excitation's chunk count (one per chunk, from 1 in a new core; wraps).
+    pub chunk: u32,
+    /// Phases of the chunk's first sample.
+    pub first: [u32; 2],
+    /// The tones' increments.
+    pub inc: [u32; 2],
+    /// The tones' amplitudes.
+    pub amp: [T; 2],
+}
+
+/// One chunk of tones precomputed by the estimator task (issue 14, round 7): what the loop
+/// reads, one value per sample, instead of running the oscillators itself.
+#[derive(Clone, Copy, Debug)]
+pub struct ToneChunk<T> {
+    /// The chunk it is for.
+    pub key: ChunkKey<T>,
+    /// `a₁·sin θ₁ + a₂·sin θ₂` of the chunk's samples, last first: `values[l]` is the sample
+    /// after which `l` rotations are left (the chunk's first sample at `RESYNC − 1`), so the
+    /// loop indexes it by its count.
+    pub values: [T; RESYNC as usize],
+}
+
+impl<T: Real> ToneChunk<T> {
+    /// An empty chunk (its key matches no chunk: count 0 is never a chunk's).
+    pub const fn new(zero: T) -> Self {
+        Self {
+            key: ChunkKey {
+                chunk: 0,
+                first: [0, 0],
+                inc: [0, 0],
+                amp: [zero, zero],
+            },
+            values: [zero; RESYNC as usize],
+        }
+    }
+}
+
+/// Where the excitation finds precomputed chunks of tones (the firmware's queue from the
+/// estimator task); the default has none, and the loop runs its oscillators (the host's
+/// in-line step, the tests). The values are the same either way ([`fill_chunk`]).
+pub trait ToneSource<T> {
+    /// At a chunk's first sample: take the chunk for `key` if one is ready (true), else the
+    /// loop computes this chunk itself.
+    #[inline(always)]
+    fn take_tones(&mut self, _key: &ChunkKey<T>) -> bool {
+        false
+    }
+    /// The taken chunk's value after which `left` rotations are left (`left < RESYNC`).
+    #[inline(always)]
+    fn tone(&self, _left: u32) -> T
+    where
+        T: Real,
+    {
+        T::ZERO
+    }
+}
+
+/// No precomputed chunks: the excitation runs its oscillators (tests, callers without a task).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoTones;
+impl<T> ToneSource<T> for NoTones {}
+
+/// The tones of the chunk `key` into `out` (last sample first, see [`ToneChunk::values`]),
+/// by the very operations of the loop's [`Excitation`]: the oscillators set from the table
+/// at the first sample, then the recursion (floating point), or the table at every sample
+/// (`SineTable::RECURSIVE` false); the same values bit for bit.
+pub fn fill_chunk<T: SineTable>(
+    p: &ExcitationParams<T>,
+    key: &ChunkKey<T>,
+    out: &mut [T; RESYNC as usize],
+) {
+    let [f1, f2] = key.first;
+    let (i1, i2) = (p.tone1.increment, p.tone2.increment);
+    if T::RECURSIVE {
+        let mut o1 = oscillator(f1, i1, p.tone1.amplitude);
+        let mut o2 = oscillator(f2, i2, p.tone2.amplitude);
+        let (c1, c2) = (p.tone1.twice_cos, p.tone2.twice_cos);
+        let mut l = RESYNC as usize - 1;
+        if let Some(v) = out.get_mut(l) {
+            *v = o1[0] + o2[0];
+        }
+        while l > 0 {
+            l -= 1;
+            o1 = recur(o1, c1);
+            o2 = recur(o2, c2);
+            if let Some(v) = out.get_mut(l) {
+                *v = o1[0] + o2[0];
+            }
+        }
+    } else {
+        let (mut ph1, mut ph2) = (f1, f2);
+        for v in out.iter_mut().rev() {
+            *v = p.tone1.amplitude * sine::<T>(ph1) + p.tone2.amplitude * sine::<T>(ph2);
+            ph1 = ph1.wrapping_add(i1);
+            ph2 = ph2.wrapping_add(i2);
+        }
+    }
+}
+
 /// One tone of the synthesiser.
 #[derive(Clone, Copy, Debug)]
 pub struct Tone<T> {
@@ -211,17 +316,22 @@ fn oscillator<T: SineTable>(phase: u32, inc: u32, a: T) -> [T; 2] {
 /// State of the two-tone excitation.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Excitation<T> {
-    /// The two tones' oscillators, `[a·sin θ, a·sin(θ − Δ)]` at the latest sample.
+    /// The two tones' oscillators, `[a·sin θ, a·sin(θ − Δ)]` at the latest sample (while the
+    /// loop runs them: not while it reads a precomputed chunk, [`TABLE`]).
     osc1: [T; 2],
     osc2: [T; 2],
     /// Integer phases of the current chunk's last sample (of the latest sample when `left` is 0).
     phase1: u32,
     phase2: u32,
-    /// Bits 0–30: the rotations left in the current chunk (0: the next sample starts a
-    /// chunk); bit 31 ([`FULL`]): `on` and the envelope at 1, kept with them. One word, so
-    /// that the usual sample (fully on, inside a chunk) is one comparison, `> FULL`, and its
-    /// decrement the count's.
+    /// Bits 0–29: the rotations left in the current chunk (0: the next sample starts a
+    /// chunk); bit 30 ([`TABLE`]): the current chunk's values are read from a precomputed
+    /// chunk ([`ToneSource`]); bit 31 ([`FULL`]): `on` and the envelope at 1, kept with
+    /// them. One word, so that the usual sample (fully on, inside a chunk) is one
+    /// comparison, `> FULL | TABLE` (or, for a chunk the loop runs itself, a second one),
+    /// and its decrement the count's.
     left_full: u32,
+    /// The current chunk's count ([`ChunkKey::chunk`]): one per chunk, from 1.
+    chunk: u32,
     envelope: T,
     on: bool,
     /// The envelope above zero, kept with it (the step's `EXCITING` flag, every sample).
@@ -230,12 +340,48 @@ pub struct Excitation<T> {
 
 /// [`Excitation::left_full`]'s bit for "fully on".
 const FULL: u32 = 1 << 31;
+/// [`Excitation::left_full`]'s bit for "the current chunk is precomputed".
+const TABLE: u32 = 1 << 30;
+/// [`Excitation::left_full`]'s count.
+const LEFT: u32 = TABLE - 1;
+
+/// Where the next chunks start, for the estimator task to compute them ahead
+/// ([`Excitation::ahead`]): the current chunk's count and the phases of its last sample, the
+/// rotations left in it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Ahead {
+    /// The current chunk's count.
+    pub chunk: u32,
+    /// The phases of the current chunk's last sample.
+    pub phase: [u32; 2],
+    /// Samples left in the current chunk (the next chunk starts after them).
+    pub left: u32,
+}
+
+impl Ahead {
+    /// The key of the chunk `m + 1` chunks after the current one, for the tones of `p`; it
+    /// starts `left + m·RESYNC` samples from now.
+    #[inline(always)]
+    pub fn key<T: Real>(&self, m: u32, p: &ExcitationParams<T>) -> ChunkKey<T> {
+        let (i1, i2) = (p.tone1.increment, p.tone2.increment);
+        let step = 1 + m * RESYNC;
+        ChunkKey {
+            chunk: self.chunk.wrapping_add(1 + m),
+            first: [
+                self.phase[0].wrapping_add(step.wrapping_mul(i1)),
+                self.phase[1].wrapping_add(step.wrapping_mul(i2)),
+            ],
+            inc: [i1, i2],
+            amp: [p.tone1.amplitude, p.tone2.amplitude],
+        }
+    }
+}
 
 impl<T: SineTable> Excitation<T> {
     /// Rotations left in the current chunk.
     #[inline(always)]
     fn left(&self) -> u32 {
-        self.left_full & !FULL
+        self.left_full & LEFT
     }
 
     /// Fully on: `on` and the envelope at 1.
@@ -246,7 +392,7 @@ impl<T: SineTable> Excitation<T> {
 
     #[inline(always)]
     fn set_full(&mut self, full: bool) {
-        self.left_full = self.left() | if full { FULL } else { 0 };
+        self.left_full = (self.left_full & !FULL) | if full { FULL } else { 0 };
     }
 
     /// Ramp the envelope towards 1 (`true`) or 0 (`false`).
@@ -280,6 +426,16 @@ impl<T: SineTable> Excitation<T> {
         self.envelope >= T::ONE
     }
 
+    /// Where the next chunks start (the block header's, for the estimator task).
+    #[inline(always)]
+    pub fn ahead(&self) -> Ahead {
+        Ahead {
+            chunk: self.chunk,
+            phase: [self.phase1, self.phase2],
+            left: self.left(),
+        }
+    }
+
     /// Integer phases of the latest sample, for the tones of `p` (for tests and telemetry).
     pub fn phases(&self, p: &ExcitationParams<T>) -> (u32, u32) {
         (
@@ -291,59 +447,89 @@ impl<T: SineTable> Excitation<T> {
     }
 
     /// The two tones `a·sin θ` at the latest sample, before the envelope (for tests; zero for
-    /// a type that reads the table at every sample, `SineTable::RECURSIVE` false).
+    /// a type that reads the table at every sample, `SineTable::RECURSIVE` false; stale while
+    /// a precomputed chunk is read).
     pub fn tone_values(&self) -> (T, T) {
         (self.osc1[0], self.osc2[0])
     }
 
-    /// A chunk's first sample: both oscillators set from the exact integer phases. Out of
-    /// line: once per [`RESYNC`] samples, and its table reads would crowd the per-sample path.
+    /// True while the current chunk is read from a precomputed one (for tests).
+    pub fn reading_chunk(&self) -> bool {
+        self.left_full & TABLE != 0
+    }
+
+    /// A chunk's first sample: the chunk from `src` if it has it, else both oscillators set
+    /// from the exact integer phases (or, `RECURSIVE` false, the table read); the sample's
+    /// tones. Out of line: once per [`RESYNC`] samples, and its table reads would crowd the
+    /// per-sample path.
     #[inline(never)]
-    fn start_chunk(&mut self, p: &ExcitationParams<T>) {
+    fn start_chunk(&mut self, p: &ExcitationParams<T>, src: &mut impl ToneSource<T>) -> T {
         // The phases of this sample; then those of the chunk's last, RESYNC − 1 samples on.
         let (i1, i2) = (p.tone1.increment, p.tone2.increment);
         let first1 = self.phase1.wrapping_add(i1);
         let first2 = self.phase2.wrapping_add(i2);
-        self.osc1 = oscillator(first1, i1, p.tone1.amplitude);
-        self.osc2 = oscillator(first2, i2, p.tone2.amplitude);
+        self.chunk = self.chunk.wrapping_add(1);
         self.phase1 = first1.wrapping_add((RESYNC - 1).wrapping_mul(i1));
         self.phase2 = first2.wrapping_add((RESYNC - 1).wrapping_mul(i2));
+        let key = ChunkKey {
+            chunk: self.chunk,
+            first: [first1, first2],
+            inc: [i1, i2],
+            amp: [p.tone1.amplitude, p.tone2.amplitude],
+        };
+        if src.take_tones(&key) {
+            self.left_full = (self.left_full & FULL) | TABLE | (RESYNC - 1);
+            return src.tone(RESYNC - 1);
+        }
         self.left_full = (self.left_full & FULL) | (RESYNC - 1);
+        if !T::RECURSIVE {
+            return p.tone1.amplitude * sine::<T>(first1) + p.tone2.amplitude * sine::<T>(first2);
+        }
+        self.osc1 = oscillator(first1, i1, p.tone1.amplitude);
+        self.osc2 = oscillator(first2, i2, p.tone2.amplitude);
+        self.osc1[0] + self.osc2[0]
     }
 
     /// Both tones advanced one sample: `a₁·sin θ₁ + a₂·sin θ₂`.
     #[inline(always)]
-    fn tones(&mut self, p: &ExcitationParams<T>) -> T {
-        if !T::RECURSIVE {
-            // The table at every sample (`left` stays 0: the phases are the latest sample's).
-            self.phase1 = self.phase1.wrapping_add(p.tone1.increment);
-            self.phase2 = self.phase2.wrapping_add(p.tone2.increment);
-            return p.tone1.amplitude * sine::<T>(self.phase1)
-                + p.tone2.amplitude * sine::<T>(self.phase2);
-        }
+    fn tones(&mut self, p: &ExcitationParams<T>, src: &mut impl ToneSource<T>) -> T {
         if self.left() == 0 {
-            self.start_chunk(p);
-        } else {
-            self.left_full -= 1;
-            self.osc1 = recur(self.osc1, p.tone1.twice_cos);
-            self.osc2 = recur(self.osc2, p.tone2.twice_cos);
+            return self.start_chunk(p, src);
         }
+        self.left_full -= 1;
+        if self.left_full & TABLE != 0 {
+            return src.tone(self.left());
+        }
+        if !T::RECURSIVE {
+            // The table at this sample's phases (`left` samples before the chunk's last).
+            let (ph1, ph2) = self.phases(p);
+            return p.tone1.amplitude * sine::<T>(ph1) + p.tone2.amplitude * sine::<T>(ph2);
+        }
+        self.osc1 = recur(self.osc1, p.tone1.twice_cos);
+        self.osc2 = recur(self.osc2, p.tone2.twice_cos);
         self.osc1[0] + self.osc2[0]
     }
 
-    /// The next excitation sample, and advance.
+    /// The next excitation sample, and advance; the chunks precomputed by `src` when it has
+    /// them.
     #[inline(always)]
-    pub fn next(&mut self, p: &ExcitationParams<T>) -> T {
-        // The usual sample, fully on inside a chunk: the path below's operations, its two
-        // tests in one.
-        if T::RECURSIVE && self.left_full > FULL {
-            self.left_full -= 1;
+    pub fn next(&mut self, p: &ExcitationParams<T>, src: &mut impl ToneSource<T>) -> T {
+        // The usual samples, fully on inside a chunk: the path below's operations, its tests
+        // in one comparison (a precomputed chunk: one load) or two (the recursion).
+        let lf = self.left_full;
+        if lf > FULL | TABLE {
+            let l = lf - 1;
+            self.left_full = l;
+            return src.tone(l & LEFT);
+        }
+        if T::RECURSIVE && lf.wrapping_sub(FULL + 1) < LEFT {
+            self.left_full = lf - 1;
             self.osc1 = recur(self.osc1, p.tone1.twice_cos);
             self.osc2 = recur(self.osc2, p.tone2.twice_cos);
             return self.osc1[0] + self.osc2[0];
         }
         // The phases run continuously, on or off, so the tones are coherent from tap to tap.
-        let s = self.tones(p);
+        let s = self.tones(p, src);
         if self.full() {
             // Fully on: the ramp below would leave the envelope at 1, and 1·s = s.
             return s;
@@ -367,6 +553,53 @@ impl<T: SineTable> Excitation<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A source that has every chunk, computed when asked (the task's `fill_chunk`).
+    struct Always<T>(ToneChunk<T>, ExcitationParams<T>);
+    impl<T: SineTable> ToneSource<T> for Always<T> {
+        fn take_tones(&mut self, key: &ChunkKey<T>) -> bool {
+            // Every other chunk, so that both kinds follow each other.
+            if key.chunk % 3 == 1 {
+                return false;
+            }
+            self.0.key = *key;
+            fill_chunk(&self.1, key, &mut self.0.values);
+            true
+        }
+        fn tone(&self, left: u32) -> T {
+            self.0.values[left as usize]
+        }
+    }
+
+    fn same_with_chunks<T: SineTable>() {
+        let fs = 1e6;
+        let p = ExcitationParams {
+            tone1: Tone::new(19_700.0, fs, T::from_f64(1000.0)),
+            tone2: Tone::new(19_700.0 / 4.0, fs, T::from_f64(70.0)),
+            ramp_step: T::from_f64(1.0 / 300.0),
+        };
+        let mut a = Excitation::<T>::default();
+        let mut b = Excitation::<T>::default();
+        let mut src = Always(ToneChunk::new(T::ZERO), p);
+        for i in 0..20_000u32 {
+            // On, off and on again, with ramps: every path.
+            if i % 5_000 == 17 {
+                let on = (i / 5_000) % 2 == 0;
+                a.set_on(on);
+                b.set_on(on);
+            }
+            let (x, y) = (a.next(&p, &mut NoTones), b.next(&p, &mut src));
+            assert!(x == y, "sample {i}: {:?} against {:?}", x, y);
+            assert_eq!(a.phases(&p), b.phases(&p));
+        }
+    }
+
+    #[test]
+    fn precomputed_chunks_give_the_same_values() {
+        same_with_chunks::<f32>();
+        same_with_chunks::<f64>();
+        same_with_chunks::<crate::fixed::Q32>();
+    }
 
     #[test]
     fn table_is_accurate() {

@@ -27,6 +27,9 @@
 
 use crate::controller::status;
 use crate::estimator::{BlockInfo, BlockStats, Estimator, EstimatorParams, UpdateInfo};
+use crate::excitation::{
+    fill_chunk, Ahead, ChunkKey, ExcitationParams, SineTable, ToneSource, RESYNC,
+};
 use crate::guard::{GuardParams, Watch};
 use crate::prefilter::HighPass;
 use crate::real::Real;
@@ -85,7 +88,9 @@ pub const SAMPLE_HP_REST: u32 = 4;
 /// firmware the producer end of a queue to the estimator task, on the host
 /// ([`crate::Controller::step_internal`]) the in-line task's block sums. Closures
 /// `FnMut(Sample<T>)` are sinks.
-pub trait SampleSink<T> {
+/// The sink is also where the excitation finds chunks of tones precomputed by the task
+/// ([`ToneSource`]; a closure has none).
+pub trait SampleSink<T>: ToneSource<T> {
     /// One sample of the block being accumulated, in order.
     fn push(&mut self, s: Sample<T>);
 }
@@ -96,6 +101,8 @@ impl<T, F: FnMut(Sample<T>)> SampleSink<T> for F {
         self(s)
     }
 }
+
+impl<T, F: FnMut(Sample<T>)> ToneSource<T> for F {}
 
 /// One block header, loop → estimator task. The block's samples travel apart, in order,
 /// through a [`SampleSink`]: the header says how many of the samples waiting belong to this
@@ -118,7 +125,40 @@ pub struct Block<T> {
     /// block whose samples did not all fit the queue: its restarts still apply, θ̂ does not
     /// move.
     pub samples: u32,
+    /// The chunks of tones the task computes ahead with this block.
+    pub tones: ToneAhead,
 }
+
+/// The chunks of tones the estimator task computes ahead with a block (issue 14, round 7):
+/// those starting N to 2N − 1 samples after the block's close (N samples: the task's
+/// deadline, as for its result), so that over the blocks every chunk is asked for once.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ToneAhead {
+    /// Where the next chunks start, at the block's close.
+    pub at: Ahead,
+    /// The block length N.
+    pub n: u32,
+    /// The tones: 0 none, [`TONES_DIVE`], [`TONES_SVE`].
+    pub which: u32,
+}
+
+impl ToneAhead {
+    /// No chunks.
+    pub const NONE: Self = Self {
+        at: Ahead {
+            chunk: 0,
+            phase: [0, 0],
+            left: 0,
+        },
+        n: 0,
+        which: 0,
+    };
+}
+
+/// [`ToneAhead::which`]: DIVE's tones.
+pub const TONES_DIVE: u32 = 1;
+/// [`ToneAhead::which`]: SVE's tones.
+pub const TONES_SVE: u32 = 2;
 
 impl<T> Block<T> {
     /// Which estimator the block is for.
@@ -138,6 +178,8 @@ pub struct BlockSums<T> {
     pub s3: BlockStats<T, 3>,
     /// Estimating samples added.
     pub n: u32,
+    /// The block's samples seen (estimating or not): the next one's place in the block.
+    pub seen: u32,
 }
 
 impl<T: Real> Default for BlockSums<T> {
@@ -146,6 +188,7 @@ impl<T: Real> Default for BlockSums<T> {
             s2: BlockStats::default(),
             s3: BlockStats::default(),
             n: 0,
+            seen: 0,
         }
     }
 }
@@ -180,6 +223,7 @@ impl<T: Real> BlockSums<T> {
         self.s2.clear();
         self.s3.clear();
         self.n = 0;
+        self.seen = 0;
     }
 }
 
@@ -222,6 +266,14 @@ pub struct TaskParams<T> {
     pub reg: RegressorParams<T>,
     /// The SVE high-passes' pole factor.
     pub highpass: T,
+    /// DIVE's tones (the chunks computed ahead).
+    pub exc_dive: ExcitationParams<T>,
+    /// SVE's tones.
+    pub exc_sve: ExcitationParams<T>,
+    /// DIVE: every `mask + 1`-th sample of a block into the sums (`EstimatorConfig::stride`).
+    pub stride_mask_dive: u32,
+    /// SVE: the same.
+    pub stride_mask_sve: u32,
 }
 
 /// The estimators and their divergence watch: what the lower-priority task owns.
@@ -409,6 +461,16 @@ impl<T: Real> EstimatorTask<T> {
         }
     }
 
+    /// The stride of the information sums less one (a mask: the stride is a power of two):
+    /// the block's sample `j` (from 0, its own samples) goes into the sums when `j & mask` is 0.
+    #[inline(always)]
+    pub fn stride_mask(&self, target: Target) -> u32 {
+        match target {
+            Target::Dive2 | Target::Dive3 => self.p.stride_mask_dive,
+            Target::Sve2 | Target::Sve3 => self.p.stride_mask_sve,
+        }
+    }
+
     /// One block (the reference form; the firmware runs [`Self::run_in_place`]): `samples`
     /// yields the samples handed over for it in order, first the `b.skip` to
     /// discard (they only feed the filters), then the block's `b.samples` (the estimating
@@ -426,6 +488,7 @@ impl<T: Real> EstimatorTask<T> {
         let mut samples = samples.take(b.skip.wrapping_add(b.samples) as usize);
         let target = b.target;
         let (ip, ai) = self.acc(target);
+        let mask = self.stride_mask(target);
         let p = &self.p;
         let mut n = 0u32;
         if target.two() {
@@ -435,10 +498,12 @@ impl<T: Real> EstimatorTask<T> {
                 feed_filters(p, &mut reg, &mut hp, &x);
             }
             let mut s = BlockStats::<T, 2>::default();
-            for x in samples {
+            for (j, x) in samples.enumerate() {
                 if let Some((w, phi)) = feed_filters(p, &mut reg, &mut hp, &x) {
-                    s.add(ip, ai, w, &[phi[0], phi[1]]);
-                    n += 1;
+                    if j as u32 & mask == 0 {
+                        s.add(ip, ai, w, &[phi[0], phi[1]]);
+                        n += 1;
+                    }
                 }
             }
             (self.reg, self.hp) = (reg, hp);
@@ -459,10 +524,12 @@ impl<T: Real> EstimatorTask<T> {
                 feed_filters(p, reg, hp, &x);
             }
             let mut s = BlockStats::<T, 3>::default();
-            for x in samples {
+            for (j, x) in samples.enumerate() {
                 if let Some((w, phi)) = feed_filters(p, reg, hp, &x) {
-                    s.add(ip, ai, w, &phi);
-                    n += 1;
+                    if j as u32 & mask == 0 {
+                        s.add(ip, ai, w, &phi);
+                        n += 1;
+                    }
                 }
             }
             let s = core::hint::black_box(s);
@@ -496,6 +563,9 @@ impl<T: Real> EstimatorTask<T> {
         let skip = b.skip as usize;
         let target = b.target;
         let (ip, ai) = self.acc(target);
+        let mask = self.stride_mask(target);
+        // At least 1 (`step_by` of 0 would panic; the mask is below 8).
+        let stride = (mask as usize).wrapping_add(1).max(1);
         let p = &self.p;
         // The prefilters: every sample; a flagged one's w, φ₁, φ₂ over its slot.
         let mut reg = self.reg;
@@ -528,15 +598,27 @@ impl<T: Real> EstimatorTask<T> {
                 for x in head {
                     high_pass(a, &mut hp, x);
                 }
-                for x in own {
-                    if let Some((w, phi)) = high_pass(a, &mut hp, x) {
-                        s.add(ip, ai, w, &phi);
-                        n += 1;
+                if mask == 0 {
+                    // Every sample (the loop without the stride's test).
+                    for x in own {
+                        if let Some((w, phi)) = high_pass(a, &mut hp, x) {
+                            s.add(ip, ai, w, &phi);
+                            n += 1;
+                        }
+                    }
+                } else {
+                    for (j, x) in own.iter().enumerate() {
+                        if let Some((w, phi)) = high_pass(a, &mut hp, x) {
+                            if j as u32 & mask == 0 {
+                                s.add(ip, ai, w, &phi);
+                                n += 1;
+                            }
+                        }
                     }
                 }
                 self.hp = hp;
             } else {
-                for x in own {
+                for x in own.iter().step_by(stride) {
                     if x.flags & SAMPLE_EST != 0 {
                         s.add(ip, ai, x.z, &[x.u, x.r]);
                         n += 1;
@@ -555,15 +637,27 @@ impl<T: Real> EstimatorTask<T> {
                 for x in head {
                     high_pass(a, &mut hp, x);
                 }
-                for x in own {
-                    if let Some((w, phi)) = high_pass(a, &mut hp, x) {
-                        s.add(ip, ai, w, &[phi[0], phi[1], T::ONE]);
-                        n += 1;
+                if mask == 0 {
+                    // Every sample (the loop without the stride's test).
+                    for x in own {
+                        if let Some((w, phi)) = high_pass(a, &mut hp, x) {
+                            s.add(ip, ai, w, &[phi[0], phi[1], T::ONE]);
+                            n += 1;
+                        }
+                    }
+                } else {
+                    for (j, x) in own.iter().enumerate() {
+                        if let Some((w, phi)) = high_pass(a, &mut hp, x) {
+                            if j as u32 & mask == 0 {
+                                s.add(ip, ai, w, &[phi[0], phi[1], T::ONE]);
+                                n += 1;
+                            }
+                        }
                     }
                 }
                 self.hp = hp;
             } else {
-                for x in own {
+                for x in own.iter().step_by(stride) {
                     if x.flags & SAMPLE_EST != 0 {
                         s.add(ip, ai, x.z, &[x.u, x.r, T::ONE]);
                         n += 1;
@@ -668,5 +762,36 @@ impl<T: Real> EstimatorTask<T> {
         let info = self.est3.update(p, w, phi);
         let e = self.est3.last_error();
         est_flags(info) | self.watch(target, info, e, w, false)
+    }
+}
+
+impl<T: SineTable> EstimatorTask<T> {
+    /// The chunks of tones the block's header asks for ([`ToneAhead`]: those starting N to
+    /// 2N − 1 samples after the close; none, one or two), in order: `f` gets each one's key
+    /// and the tones' constants, to fill a chunk with [`fill_chunk`] (or [`Self::fill`]).
+    #[inline(always)]
+    pub fn tones_ahead(
+        &self,
+        a: &ToneAhead,
+        mut f: impl FnMut(&ChunkKey<T>, &ExcitationParams<T>),
+    ) {
+        let p = match a.which {
+            TONES_DIVE => &self.p.exc_dive,
+            TONES_SVE => &self.p.exc_sve,
+            _ => return,
+        };
+        // Chunk m + 1 after the current one starts left + m·RESYNC samples after the close.
+        let (n, left) = (a.n.min(64), a.at.left.min(RESYNC));
+        let mut m = n.saturating_sub(left).div_ceil(RESYNC);
+        while left + m * RESYNC < 2 * n {
+            f(&a.at.key(m, p), p);
+            m += 1;
+        }
+    }
+
+    /// [`fill_chunk`] (for the task's callers that do not hold the constants).
+    #[inline(always)]
+    pub fn fill(p: &ExcitationParams<T>, key: &ChunkKey<T>, out: &mut [T; RESYNC as usize]) {
+        fill_chunk(p, key, out)
     }
 }

@@ -160,7 +160,42 @@ fn sve_paper_regressor_tracks_a_slope_when_scanning_slowly() {
 #[test]
 fn firmware_schedule_matches_step_bit_for_bit() {
     use std::collections::VecDeque;
-    use visco_core::schedule::Sample;
+    use visco_core::excitation::{fill_chunk, ChunkKey, ToneChunk, ToneSource};
+    use visco_core::schedule::{Sample, SampleSink};
+    /// The firmware's link in short: the samples queued, and the chunks of tones the task
+    /// computed ahead (issue 14, round 7), taken as the firmware's `QueueLink` takes them.
+    struct Sink {
+        queue: VecDeque<Sample<f32>>,
+        ready: VecDeque<ToneChunk<f32>>,
+        cur: ToneChunk<f32>,
+        taken: u32,
+        late: u32,
+    }
+    impl ToneSource<f32> for Sink {
+        fn take_tones(&mut self, key: &ChunkKey<f32>) -> bool {
+            while let Some(c) = self.ready.front() {
+                if c.key.chunk.wrapping_sub(key.chunk) as i32 > 0 {
+                    break;
+                }
+                let c = self.ready.pop_front().unwrap();
+                if c.key == *key {
+                    self.cur = c;
+                    self.taken += 1;
+                    return true;
+                }
+            }
+            self.late += 1;
+            false
+        }
+        fn tone(&self, left: u32) -> f32 {
+            self.cur.values[left as usize]
+        }
+    }
+    impl SampleSink<f32> for Sink {
+        fn push(&mut self, s: Sample<f32>) {
+            self.queue.push_back(s);
+        }
+    }
     let h = 120e-9;
     let mut dive = Config::paper(FS);
     dive.dive.nx = 1;
@@ -191,7 +226,14 @@ fn firmware_schedule_matches_step_bit_for_bit() {
         host.command(Command::Start(mode));
         fw.command(Command::Start(mode));
         let (mut result, mut blocks, mut skipped) = (None, 0u32, 0u32);
-        let mut queue: VecDeque<Sample<f32>> = VecDeque::new();
+        let mut sink = Sink {
+            queue: VecDeque::new(),
+            ready: VecDeque::new(),
+            cur: ToneChunk::new(0.0),
+            taken: 0,
+            late: 0,
+        };
+        let mut next_chunk = 1u32;
         let mut d = 0.0f32;
         for i in 0..steps {
             if fw.block_due() {
@@ -207,15 +249,26 @@ fn firmware_schedule_matches_step_bit_for_bit() {
                     let samples = b.samples;
                     assert!(samples >= 1 && samples <= n, "{mode:?}: {samples} samples");
                     assert!(
-                        queue.len() == (b.skip + samples) as usize,
+                        sink.queue.len() == (b.skip + samples) as usize,
                         "{mode:?}: {} queued for {} + {samples}",
-                        queue.len(),
+                        sink.queue.len(),
                         b.skip
                     );
                     skipped += b.skip;
-                    let mut buf: Vec<Sample<f32>> = queue.iter().copied().collect();
+                    let mut buf: Vec<Sample<f32>> = sink.queue.iter().copied().collect();
                     let r2 = task2.run_in_place(&b, &mut buf);
-                    let r = task.run(&b, queue.drain(..));
+                    let r = task.run(&b, sink.queue.drain(..));
+                    // The chunks of tones the block asks for, computed at once.
+                    task.tones_ahead(&b.tones, |key, p| {
+                        if (key.chunk.wrapping_sub(next_chunk) as i32) < 0 {
+                            return;
+                        }
+                        next_chunk = key.chunk.wrapping_add(1);
+                        let mut c = ToneChunk::new(0.0);
+                        c.key = *key;
+                        fill_chunk(p, key, &mut c.values);
+                        sink.ready.push_back(c);
+                    });
                     assert_eq!(
                         (r.theta.map(f32::to_bits), r.flags, r.epoch, r.updated),
                         (r2.theta.map(f32::to_bits), r2.flags, r2.epoch, r2.updated),
@@ -226,7 +279,7 @@ fn firmware_schedule_matches_step_bit_for_bit() {
                 });
             }
             let a = host.step(d);
-            let b = fw.step_loop_m(d, &mut |x| queue.push_back(x));
+            let b = fw.step_loop_m(d, &mut sink);
             assert_eq!(
                 (a.u_code, a.x_code, a.y_code, a.status, a.u_m.to_bits()),
                 (b.u_code, b.x_code, b.y_code, b.status, b.u_m.to_bits()),
@@ -239,8 +292,20 @@ fn firmware_schedule_matches_step_bit_for_bit() {
         }
         // Thousands of hand-overs (5 466 in DIVE, 4 064 in SVE when written), each block's
         // effect compared sample by sample above.
-        println!("{mode:?}: {blocks} blocks handed over, {skipped} samples discarded");
+        println!(
+            "{mode:?}: {blocks} blocks handed over, {skipped} samples discarded; chunks of tones \
+             {} precomputed, {} by the loop",
+            sink.taken, sink.late
+        );
         assert!(blocks > 300, "{mode:?}: only {blocks} blocks");
+        // The loop's own chunks: the first of each mode's stretches with blocks, and where
+        // the tones stood still (no chunk of the task's then).
+        assert!(
+            sink.taken > 20 * sink.late,
+            "{mode:?}: {} precomputed, {} by the loop",
+            sink.taken,
+            sink.late
+        );
     }
 }
 

@@ -115,7 +115,7 @@ fn run<T: SineTable, const N: usize>(
                 trace.push(((k - settle) as f64 / FS, err));
             }
         }
-        u = u0 + exc_state.next(&xp);
+        u = u0 + exc_state.next(&xp, &mut visco_core::excitation::NoTones);
     }
     let th = est.theta();
     let mut theta = [0.0; 3];

@@ -68,7 +68,7 @@ fn excitation_follows_the_requested_tones_over_1e8_samples() {
     let mut start = [0.0f64; 4];
     let mut end = [0.0f64; 4];
     for n in 0..N {
-        let v = f64::from(exc.next(&p));
+        let v = f64::from(exc.next(&p, &mut visco_core::excitation::NoTones));
         let t = (n + 1) as f64 / FS;
         let (x1, x2) = (phase_at(f1, n), phase_at(f2, n));
         // (a) The tones at the representable frequencies: the requested phase plus 2π·Δf·t.

@@ -74,6 +74,7 @@ fn check<T: SineTable>(name: &str) {
             target,
             skip,
             samples: own,
+            tones: Default::default(),
         };
         let want = reference.run(&b, samples.iter().copied());
         let mut buffer = samples.clone();

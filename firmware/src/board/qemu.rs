@@ -29,6 +29,7 @@ use visco_firmware::drivers::ad4000::{self, part, Ad4000, CFG_TURBO};
 use visco_firmware::drivers::ad5541::Ad5541;
 use visco_firmware::loop_body::{
     self, BlockBuf, CommandSlot, Counters, EstimatorLink, Item, LoopState, QueueLink, SampleBlock,
+    ToneBuf, ToneLink, TonePrep,
 };
 use visco_firmware::scale::Scale;
 use visco_firmware::spi_device::CsDevice;
@@ -825,6 +826,22 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32,
         let Some(mut task) = (unsafe { app::ESTIMATOR.get() }).map(|e| e.task) else {
             return (0, 0, 0, 0);
         };
+        // The step reads the chunks of tones the task computes ahead, as in the interrupt:
+        // they are computed at each close here (`TonePrep::run`, timed apart and taken out).
+        let mut chunks1 =
+            [visco_firmware::core_glue::ToneChunk::new(<Number as visco_core::Real>::ZERO);
+                loop_body::TONE_CHUNKS];
+        let mut ready1: Queue<ToneBuf, { loop_body::TONE_SLOTS }> = Queue::new();
+        let mut tfree1: Queue<ToneBuf, { loop_body::TONE_SLOTS }> = Queue::new();
+        let (ready1_tx, ready1_rx) = ready1.split();
+        let (mut tfree1_tx, tfree1_rx) = tfree1.split();
+        let [held1, rest1 @ ..] = &mut chunks1;
+        for c in rest1 {
+            let _ = tfree1_tx.enqueue(c);
+        }
+        let mut prep1 = TonePrep::new(ready1_tx, tfree1_rx);
+        let mut tones1 = BenchTones(ToneLink::new(held1, ready1_rx, tfree1_tx));
+        let mut apart = 0u32;
         let t0 = systick_now();
         for &c in table {
             let d = scale.to_input(c as i32);
@@ -839,12 +856,12 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32,
             if LoopCore::block_due(core) {
                 LoopCore::close_block(core, |b| {
                     core::hint::black_box(&b);
+                    let t3 = systick_now();
+                    prep1.run(&task, &b);
+                    apart = apart.wrapping_add(t3.wrapping_sub(systick_now()) & 0x00FF_FFFF);
                 });
             }
-            let mut sink = |x: Sample| {
-                core::hint::black_box(x);
-            };
-            let o = LoopCore::step(core, core::hint::black_box(d), &mut sink);
+            let o = LoopCore::step(core, core::hint::black_box(d), &mut tones1);
             core::hint::black_box((o.u_code, o.x_code, o.y_code, o.status));
         }
         let t1 = systick_now();
@@ -862,7 +879,14 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32,
         // itself, rather than the difference of two loops of `step` that the compiler lays
         // out differently (±10 per sample), puts the hand-over (samples and header queued)
         // on the loop's side, where the firmware runs it.
+        // The chunks of tones, as the firmware's (declared first: the
+        // queues of block buffers below hold references of the same lifetime).
+        let mut chunks =
+            [visco_firmware::core_glue::ToneChunk::new(<Number as visco_core::Real>::ZERO);
+                loop_body::TONE_CHUNKS];
         let mut bufs = [SampleBlock::new(); loop_body::BLOCK_BUFFERS];
+        let mut ready: Queue<ToneBuf, { loop_body::TONE_SLOTS }> = Queue::new();
+        let mut tfree: Queue<ToneBuf, { loop_body::TONE_SLOTS }> = Queue::new();
         let mut full: Queue<BlockBuf, { loop_body::BUFFER_SLOTS }> = Queue::new();
         let mut free: Queue<BlockBuf, { loop_body::BUFFER_SLOTS }> = Queue::new();
         let mut results: Queue<BlockResult, { loop_body::ESTIMATOR_DEPTH + 1 }> = Queue::new();
@@ -873,8 +897,23 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32,
         for b in rest {
             let _ = f_tx.enqueue(b);
         }
+        let (ready_tx, ready_rx) = ready.split();
+        let (mut tfree_tx, tfree_rx) = tfree.split();
+        let [held, rest @ ..] = &mut chunks;
+        for c in rest {
+            let _ = tfree_tx.enqueue(c);
+        }
+        let mut prep = TonePrep::new(ready_tx, tfree_rx);
         let counters = Counters::new();
-        let mut link = QueueLink::new(stage, b_tx, f_rx, r_rx, || {}, &counters);
+        let mut link = QueueLink::new(
+            stage,
+            b_tx,
+            f_rx,
+            r_rx,
+            || {},
+            &counters,
+            ToneLink::new(held, ready_rx, tfree_tx),
+        );
         let mut blocks = 0u32;
         let mut est = 0u32;
         for &c in table {
@@ -891,6 +930,7 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32,
                         &mut b_rx,
                         &mut f_tx,
                         &mut r_tx,
+                        &mut prep,
                     );
                     est = est.wrapping_add(t3.wrapping_sub(systick_now()) & 0x00FF_FFFF);
                     blocks += 1;
@@ -899,9 +939,29 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32,
             let o = LoopCore::step(core, core::hint::black_box(d), &mut link);
             core::hint::black_box((o.u_code, o.x_code, o.y_code, o.status));
         }
-        let step = t0.wrapping_sub(t1) & 0x00FF_FFFF;
+        let step = (t0.wrapping_sub(t1) & 0x00FF_FFFF).wrapping_sub(apart);
         (step, t1.wrapping_sub(t2) & 0x00FF_FFFF, est, blocks)
     })
+}
+
+/// The step's sink in [`time_step_alone`]'s first loop: samples dropped, chunks of tones read
+/// as the firmware's link reads them.
+struct BenchTones<'a, 'b>(ToneLink<'a, 'b>);
+impl visco_firmware::core_glue::ToneSource<Number> for BenchTones<'_, '_> {
+    #[inline(always)]
+    fn take_tones(&mut self, key: &visco_firmware::core_glue::ChunkKey) -> bool {
+        self.0.take(key)
+    }
+    #[inline(always)]
+    fn tone(&self, left: u32) -> Number {
+        self.0.tone(left)
+    }
+}
+impl visco_firmware::core_glue::SampleSink<Number> for BenchTones<'_, '_> {
+    #[inline(always)]
+    fn push(&mut self, x: Sample) {
+        core::hint::black_box(x);
+    }
 }
 
 /// SysTick ticks for a loop of exactly `2 × iterations + 1` instructions (the `subs`/`bne`
