@@ -11,7 +11,7 @@
 //! The figures are printed (the measured ones are in refsim/README.md with the command).
 
 use visco::diagnose::search::SearchOptions;
-use visco::experiment::concealed::run_recordings;
+use visco::experiment::concealed::{run_recordings, SuiteRow};
 use visco::plant::effects::EffectKind;
 
 #[test]
@@ -250,23 +250,11 @@ fn refsim_interference_waves_are_found_and_transparent() {
 #[test]
 #[ignore = "needs refsim recordings: run by `cargo xtask test` (VISCO_REFSIM_SMOOTH_DIR)"]
 fn refsim_smooth_command_is_followed_between_the_samples() {
-    let dir = std::env::var("VISCO_REFSIM_SMOOTH_DIR").expect(
-        "VISCO_REFSIM_SMOOTH_DIR: the directory `python -m refsim generate --first-seed 17` wrote",
-    );
-    let report = run_recordings(
-        std::path::Path::new(&dir),
-        1,
-        &SearchOptions::default(),
-        &|_, _, _| {},
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!(report.rows.len(), 1, "one recording expected in {dir}");
-    let r = &report.rows[0];
-    assert!(r.error.is_none(), "{} refused: {:?}", r.setup, r.error);
+    let r = diagnose_one("VISCO_REFSIM_SMOOTH_DIR");
     let misfit = r.truth_error_before_m / r.noise_m;
     println!(
-        "{}: named {:?}, nominal against the truth {misfit:.3}× the noise RMS",
-        r.setup, r.named
+        "{}: nominal against the truth {misfit:.3}× the noise RMS",
+        r.setup
     );
     assert!(r.named.is_empty(), "{}: named {:?}", r.setup, r.named);
     assert!(
@@ -276,8 +264,8 @@ fn refsim_smooth_command_is_followed_between_the_samples() {
     );
 }
 
-/// The recording in `VISCO_REFSIM_<var>_DIR` (one refsim recording), diagnosed.
-fn diagnose_one(var: &str) -> (String, Vec<String>) {
+/// The one refsim recording in the directory the environment variable `var` names, diagnosed.
+fn diagnose_one(var: &str) -> SuiteRow {
     let dir = std::env::var(var).unwrap_or_else(|_| panic!("{var}: the directory refsim wrote"));
     let report = run_recordings(
         std::path::Path::new(&dir),
@@ -287,13 +275,10 @@ fn diagnose_one(var: &str) -> (String, Vec<String>) {
     )
     .unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(report.rows.len(), 1, "one recording expected in {dir}");
-    let r = &report.rows[0];
+    let r = report.rows.into_iter().next().expect("one row");
     assert!(r.error.is_none(), "{} refused: {:?}", r.setup, r.error);
     println!("{}: named {:?}", r.setup, r.named);
-    (
-        r.setup.clone(),
-        r.named.iter().map(|n| n.as_str().to_string()).collect(),
-    )
+    r
 }
 
 /// Adhesion and surface attraction both hold the tip in contact; only surface attraction
@@ -306,16 +291,17 @@ fn diagnose_one(var: &str) -> (String, Vec<String>) {
 #[test]
 #[ignore = "needs refsim recordings: run by `cargo xtask test` (VISCO_REFSIM_ADHESION_DIR, VISCO_REFSIM_ATTRACTION_DIR)"]
 fn refsim_adhesion_and_surface_attraction_are_told_apart_by_the_approach() {
-    let (setup, named) = diagnose_one("VISCO_REFSIM_ADHESION_DIR");
-    assert_eq!(
-        named.first().map(String::as_str),
-        Some("adhesion"),
-        "{setup}: named {named:?}"
-    );
-    let (setup, named) = diagnose_one("VISCO_REFSIM_ATTRACTION_DIR");
-    assert_eq!(
-        named.first().map(String::as_str),
-        Some("surface-attraction"),
-        "{setup}: named {named:?}"
-    );
+    for (var, kind) in [
+        ("VISCO_REFSIM_ADHESION_DIR", EffectKind::Adhesion),
+        ("VISCO_REFSIM_ATTRACTION_DIR", EffectKind::SurfaceAttraction),
+    ] {
+        let r = diagnose_one(var);
+        assert_eq!(
+            r.named.first(),
+            Some(&kind),
+            "{}: named {:?}",
+            r.setup,
+            r.named
+        );
+    }
 }
