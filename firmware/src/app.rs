@@ -16,8 +16,8 @@ use heapless::spsc::{Consumer, Queue};
 use visco_firmware::core_glue::BlockResult;
 use visco_firmware::core_glue::{self, CoreCommand, LoopCore, StagedConfig};
 use visco_firmware::loop_body::{
-    BlockBuf, CommandSlot, Counters, EstimatorState, Item, QueueLink, SampleBlock, ToneBuf,
-    ToneLink, TonePrep, BLOCK_BUFFERS, BUFFER_SLOTS, ESTIMATOR_DEPTH, TELEMETRY_DEPTH, TONE_CHUNKS,
+    tone_ends, BlockBuf, CommandSlot, Counters, EstimatorState, Item, QueueLink, SampleBlock,
+    ToneBuf, BLOCK_BUFFERS, BUFFER_SLOTS, ESTIMATOR_DEPTH, TELEMETRY_DEPTH, TONE_CHUNKS,
     TONE_SLOTS,
 };
 use visco_protocol::{
@@ -267,12 +267,7 @@ pub fn run() -> ! {
     ) else {
         board::fatal(11)
     };
-    let (ready_tx, ready_rx) = ready.split();
-    let (mut tfree_tx, tfree_rx) = tfree.split();
-    let [held, rest @ ..] = chunks;
-    for c in rest {
-        let _ = tfree_tx.enqueue(c);
-    }
+    let (tone_link, tone_prep) = tone_ends(chunks, ready, tfree);
     let link = QueueLink::new(
         stage,
         block_tx,
@@ -280,7 +275,7 @@ pub fn run() -> ! {
         result_rx,
         board::pend_estimator,
         &COUNTERS,
-        ToneLink::new(held, ready_rx, tfree_tx),
+        tone_link,
     );
     let state = board::make_loop(&mut b, adc, core, link, tel_tx, &COMMANDS, &COUNTERS);
     board::mask_estimator();
@@ -291,7 +286,7 @@ pub fn run() -> ! {
             blocks: block_rx,
             free: free_tx,
             results: result_tx,
-            tones: TonePrep::new(ready_tx, tfree_rx),
+            tones: tone_prep,
         })
     };
     board::unmask_estimator();

@@ -15,6 +15,7 @@ use crate::core_glue::{
 use core::sync::atomic::{AtomicU32, AtomicU8, Ordering};
 use heapless::spsc::Consumer;
 use heapless::spsc::Producer;
+use heapless::spsc::Queue;
 use visco_protocol::{RecordFrame, StepFrame};
 
 /// The deflection input (ADC driver and code → the core's input, [`crate::scale::Scale`]).
@@ -118,6 +119,30 @@ pub const TONE_SLOTS: usize = 8;
 
 /// A chunk of tones, owned by whichever side holds the reference.
 pub type ToneBuf<'a> = &'a mut ToneChunk;
+
+// Every chunk fits in either queue (an spsc queue of N slots holds N − 1).
+const _: () = assert!(TONE_SLOTS > TONE_CHUNKS);
+
+/// The loop's and the task's ends of the chunks of tones, over `chunks` and the two queues
+/// (task → loop ready, loop → task free): the loop holds the first chunk, the others start
+/// free.
+pub fn tone_ends<'a, 'b>(
+    chunks: &'b mut [ToneChunk; TONE_CHUNKS],
+    ready: &'a mut Queue<ToneBuf<'b>, TONE_SLOTS>,
+    free: &'a mut Queue<ToneBuf<'b>, TONE_SLOTS>,
+) -> (ToneLink<'a, 'b>, TonePrep<'a, 'b>) {
+    let (ready_tx, ready_rx) = ready.split();
+    let (mut free_tx, free_rx) = free.split();
+    let [held, rest @ ..] = chunks;
+    for c in rest {
+        // Cannot fail: the queue holds every chunk (asserted above).
+        let _ = free_tx.enqueue(c);
+    }
+    (
+        ToneLink::new(held, ready_rx, free_tx),
+        TonePrep::new(ready_tx, free_rx),
+    )
+}
 
 /// The loop's end of the chunks of tones: the chunk it reads, the ready ones (in order) and
 /// the free ones back. At a chunk's first sample the excitation asks for the chunk of its
@@ -766,22 +791,12 @@ mod tests {
         let chunks: &'static mut [ToneChunk; TONE_CHUNKS] = std::boxed::Box::leak(
             std::boxed::Box::new([ToneChunk::new(<Number as visco_core::Real>::ZERO); TONE_CHUNKS]),
         );
-        let (ctx, crx) = leak::<ToneBuf<'static>, TONE_SLOTS>().split();
-        let (mut cftx, cfrx) = leak::<ToneBuf<'static>, TONE_SLOTS>().split();
-        let [held, crest @ ..] = chunks;
-        for c in crest {
-            assert!(cftx.enqueue(c).is_ok());
-        }
-        let mut prep = TonePrep::new(ctx, cfrx);
-        let mut link = QueueLink::new(
-            stage,
-            btx,
-            frx,
-            rrx,
-            || {},
-            &COUNTERS,
-            ToneLink::new(held, crx, cftx),
+        let (tone_link, mut prep) = tone_ends(
+            chunks,
+            leak::<ToneBuf<'static>, TONE_SLOTS>(),
+            leak::<ToneBuf<'static>, TONE_SLOTS>(),
         );
+        let mut link = QueueLink::new(stage, btx, frx, rrx, || {}, &COUNTERS, tone_link);
         let mut task = build_core(&StagedConfig::new(), None).unwrap().task;
         // What the task should have seen: the same task fed only the blocks handed over.
         let mut alone = task;

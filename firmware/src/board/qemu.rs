@@ -29,7 +29,7 @@ use visco_firmware::drivers::ad4000::{self, part, Ad4000, CFG_TURBO};
 use visco_firmware::drivers::ad5541::Ad5541;
 use visco_firmware::loop_body::{
     self, BlockBuf, CommandSlot, Counters, EstimatorLink, Item, LoopState, QueueLink, SampleBlock,
-    ToneBuf, ToneLink, TonePrep,
+    ToneBuf, ToneLink,
 };
 use visco_firmware::scale::Scale;
 use visco_firmware::spi_device::CsDevice;
@@ -833,14 +833,8 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32,
                 loop_body::TONE_CHUNKS];
         let mut ready1: Queue<ToneBuf, { loop_body::TONE_SLOTS }> = Queue::new();
         let mut tfree1: Queue<ToneBuf, { loop_body::TONE_SLOTS }> = Queue::new();
-        let (ready1_tx, ready1_rx) = ready1.split();
-        let (mut tfree1_tx, tfree1_rx) = tfree1.split();
-        let [held1, rest1 @ ..] = &mut chunks1;
-        for c in rest1 {
-            let _ = tfree1_tx.enqueue(c);
-        }
-        let mut prep1 = TonePrep::new(ready1_tx, tfree1_rx);
-        let mut tones1 = BenchTones(ToneLink::new(held1, ready1_rx, tfree1_tx));
+        let (link1, mut prep1) = loop_body::tone_ends(&mut chunks1, &mut ready1, &mut tfree1);
+        let mut tones1 = BenchTones(link1);
         let mut apart = 0u32;
         let t0 = systick_now();
         for &c in table {
@@ -897,23 +891,9 @@ fn time_step_alone(core: &ActiveCore, table: &[i16], scale: Scale) -> (u32, u32,
         for b in rest {
             let _ = f_tx.enqueue(b);
         }
-        let (ready_tx, ready_rx) = ready.split();
-        let (mut tfree_tx, tfree_rx) = tfree.split();
-        let [held, rest @ ..] = &mut chunks;
-        for c in rest {
-            let _ = tfree_tx.enqueue(c);
-        }
-        let mut prep = TonePrep::new(ready_tx, tfree_rx);
+        let (tone_link, mut prep) = loop_body::tone_ends(&mut chunks, &mut ready, &mut tfree);
         let counters = Counters::new();
-        let mut link = QueueLink::new(
-            stage,
-            b_tx,
-            f_rx,
-            r_rx,
-            || {},
-            &counters,
-            ToneLink::new(held, ready_rx, tfree_tx),
-        );
+        let mut link = QueueLink::new(stage, b_tx, f_rx, r_rx, || {}, &counters, tone_link);
         let mut blocks = 0u32;
         let mut est = 0u32;
         for &c in table {
