@@ -365,6 +365,64 @@ fn high_pass<T: Real>(a: T, hp: &mut [HighPass<T>; 3], x: &Sample<T>) -> Option<
     (x.flags & SAMPLE_EST != 0).then_some(v)
 }
 
+/// The prefilters' part of [`EstimatorTask::run_in_place`] on one slot: the sample through
+/// the filters, and, when its flags meet `want`, its `w`, `φ₁`, `φ₂` over its `z`, `u`, `r`
+/// (the same operations as [`feed_filters`]). Returns its flags.
+#[inline(always)]
+fn prefilter_slot<T: Real>(
+    p: &RegressorParams<T>,
+    reg: &mut Regressor<T>,
+    x: &mut Sample<T>,
+    want: u32,
+) -> u32 {
+    reg.update(p, x.u, x.z);
+    if x.flags & want != 0 {
+        let w = reg.w(p);
+        let phi = reg.phi_sve(x.r);
+        (x.z, x.u, x.r) = (w, phi[0], phi[1]);
+    }
+    x.flags
+}
+
+/// The prefilters over a block's own samples with the sums' stride `S`: in groups of `S`
+/// (the last one shorter), the first of each group at the stride's place (its `w` and `φ`
+/// when flagged at all), the others only when the high-passes want them. Returns the
+/// samples' flags, or-ed, and with a stride of 1 and-ed (else 0).
+#[inline(always)]
+fn prefilter_strided<T: Real, const S: usize>(
+    p: &RegressorParams<T>,
+    reg: &mut Regressor<T>,
+    own: &mut [Sample<T>],
+) -> (u32, u32) {
+    let mut f = 0;
+    let mut all = if S == 1 { u32::MAX } else { 0 };
+    let mut groups = own.chunks_exact_mut(S);
+    for g in groups.by_ref() {
+        for (i, x) in g.iter_mut().enumerate() {
+            let want = if i == 0 {
+                u32::MAX
+            } else {
+                SAMPLE_HP | SAMPLE_HP_REST
+            };
+            let flags = prefilter_slot(p, reg, x, want);
+            f |= flags;
+            if S == 1 {
+                all &= flags;
+            }
+        }
+    }
+    // (Empty with a stride of 1.)
+    for (i, x) in groups.into_remainder().iter_mut().enumerate() {
+        let want = if i == 0 {
+            u32::MAX
+        } else {
+            SAMPLE_HP | SAMPLE_HP_REST
+        };
+        f |= prefilter_slot(p, reg, x, want);
+    }
+    (f, all)
+}
+
 impl<T: Real> EstimatorTask<T> {
     /// The estimators at DIVE's θ̂₀ with P₀, the prefilters at rest with the tip and the
     /// base at `u0`.
@@ -568,17 +626,32 @@ impl<T: Real> EstimatorTask<T> {
         let stride = (mask as usize).wrapping_add(1).max(1);
         let p = &self.p;
         // The prefilters: every sample; a flagged one's w, φ₁, φ₂ over its slot.
+        // Only the slots a later pass reads get their w and φ: those the high-passes take
+        // (every sample flagged for them), and the estimating ones at the stride's places of
+        // the block's own samples (the sums take no other). The filters run on every sample.
         let mut reg = self.reg;
         let mut hp_flags = 0;
-        for x in samples.iter_mut() {
-            reg.update(&p.reg, x.u, x.z);
-            if x.flags != 0 {
-                let w = reg.w(&p.reg);
-                let phi = reg.phi_sve(x.r);
-                (x.z, x.u, x.r) = (w, phi[0], phi[1]);
-                hp_flags |= x.flags;
-            }
+        // (All of them the head when the header's skip exceeds them, as below.)
+        let len = samples.len();
+        let (head, own) = match samples.split_at_mut_checked(skip.min(len)) {
+            Some(parts) => parts,
+            None => (&mut [][..], &mut [][..]),
+        };
+        for x in head.iter_mut() {
+            hp_flags |= prefilter_slot(&p.reg, &mut reg, x, SAMPLE_HP | SAMPLE_HP_REST);
         }
+        let (own_flags, all_flags) = match stride {
+            2 => prefilter_strided::<T, 2>(&p.reg, &mut reg, own),
+            4 => prefilter_strided::<T, 4>(&p.reg, &mut reg, own),
+            // Every sample (stride 1; 8 takes the w and φ of all, as before).
+            _ => prefilter_strided::<T, 1>(&p.reg, &mut reg, own),
+        };
+        hp_flags |= own_flags;
+        // Every own sample through the high-passes into the sums (SVE's usual block, stride
+        // 1): the pass below without a test per sample.
+        let uniform = mask == 0
+            && own_flags & SAMPLE_HP_REST == 0
+            && all_flags & (SAMPLE_HP | SAMPLE_EST) == SAMPLE_HP | SAMPLE_EST;
         self.reg = reg;
         let samples: &[Sample<T>] = samples;
         // The SVE high-passes (only when a sample asks for them), in order over the slots, the
@@ -598,7 +671,26 @@ impl<T: Real> EstimatorTask<T> {
                 for x in head {
                     high_pass(a, &mut hp, x);
                 }
-                if mask == 0 {
+                if uniform {
+                    // Every sample through the high-passes and into the sums (their operations
+                    // in `high_pass`'s order, without its tests).
+                    // Two samples a turn: the filters' old and new states in alternating
+                    // registers, not moved over every sample.
+                    let mut pairs = own.chunks_exact(2);
+                    for pair in pairs.by_ref() {
+                        for x in pair {
+                            let w = hp[0].update(a, x.z);
+                            let phi = [hp[1].update(a, x.u), hp[2].update(a, x.r)];
+                            s.add(ip, ai, w, &phi);
+                        }
+                    }
+                    for x in pairs.remainder() {
+                        let w = hp[0].update(a, x.z);
+                        let phi = [hp[1].update(a, x.u), hp[2].update(a, x.r)];
+                        s.add(ip, ai, w, &phi);
+                    }
+                    n = own.len() as u32;
+                } else if mask == 0 {
                     // Every sample (the loop without the stride's test).
                     for x in own {
                         if let Some((w, phi)) = high_pass(a, &mut hp, x) {
