@@ -1,10 +1,16 @@
 """python -m refsim generate --out DIR --seeds N [--classes clean,adhesion,...]
+python -m refsim quieter --from DIR --out DIR2 --factor 0.1 [--stems a_s1,b_s2]
 
 Writes DIR/<class>_s<seed>.csv (a recording as shared/spec/recording.md defines it) and,
 beside it, the truth that `visco diagnose` never reads: <stem>.truth.json (class, amplitude,
 shape, the reached |dD|/noise, the setup) and <stem>.truth.csv (t_s, the noise-free D with
 the effect, the noise-free D without it). `visco concealed --recordings DIR` reads the truth
 only to score.
+
+`quieter` rewrites recordings of DIR with their noise-free D (from the truth) plus white
+Gaussian noise of `factor` times their noise RMS, no ADC grid: the same physics with 1/factor²
+times the information per sample. A miss that a quieter recording turns into a right name
+was limited by the information in the recording; one that stays wrong is the method's.
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ import json
 import os
 import sys
 import time
+import zlib
 from concurrent.futures import ProcessPoolExecutor
 
 from .model import EFFECTS, DiscreteBed
@@ -89,6 +96,43 @@ def job(args):
             f"{sc['ratio']:.1f}x noise, {time.time() - t:.0f} s")
 
 
+def quieter(src: str, out: str, stem: str, factor: float) -> str:
+    """Rewrite recording `stem` of `src` into `out` with factor x its noise (see the docs)."""
+    import numpy as np
+
+    with open(os.path.join(src, f"{stem}.truth.json")) as f:
+        truth = json.load(f)
+    with open(os.path.join(src, f"{stem}.csv")) as f:
+        lines = f.read().splitlines()
+    head = [ln for ln in lines if ln.startswith("#")]
+    cols = lines[len(head)].split(",")
+    rows = [ln.split(",") for ln in lines[len(head) + 1:] if ln]
+    with open(os.path.join(src, f"{stem}.truth.csv")) as f:
+        d_true = [float(ln.split(",")[1]) for ln in f.read().splitlines()[1:] if ln]
+    if len(d_true) != len(rows):
+        raise ValueError(f"{src}/{stem}.truth.csv: {len(d_true)} rows, the recording has {len(rows)}")
+    sigma = factor * truth["noise_rms_m"]
+    rng = np.random.default_rng(zlib.crc32(stem.encode()))
+    noise = rng.normal(0.0, sigma, len(rows))
+    di = cols.index("d_m")
+    for r, d, e in zip(rows, d_true, noise):
+        r[di] = repr(float(d + e))
+    tmp = os.path.join(out, f".{stem}.csv.tmp")
+    with open(tmp, "w") as f:
+        f.write("\n".join(head + [",".join(cols)] + [",".join(r) for r in rows]) + "\n")
+    truth["noise_rms_m"] = sigma
+    truth["peak_difference_over_noise"] = truth["peak_difference_over_noise"] / factor
+    truth["quieter"] = {"factor": factor, "from": os.path.abspath(src),
+                        "note": "noise-free D plus white Gaussian noise, no ADC grid"}
+    with open(os.path.join(out, f"{stem}.truth.json"), "w") as f:
+        json.dump(truth, f, indent=1)
+    with open(os.path.join(src, f"{stem}.truth.csv")) as fi, \
+            open(os.path.join(out, f"{stem}.truth.csv"), "w") as fo:
+        fo.write(fi.read())
+    os.replace(tmp, os.path.join(out, f"{stem}.csv"))
+    return stem
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m refsim")
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -106,7 +150,28 @@ def main(argv=None) -> int:
                    help="force curves only, from 1.5-3 um away, with an optical-interference "
                    "wave in the lever's height on the detector (2-10x the noise, period "
                    "0.25-0.45 um); the truth's D is without it")
+    q = sub.add_parser("quieter", help="rewrite recordings with a fraction of their noise "
+                       "(noise-free D from the truth plus fresh noise)")
+    q.add_argument("--from", dest="src", required=True, help="a directory `generate` wrote")
+    q.add_argument("--out", required=True)
+    q.add_argument("--factor", type=float, default=0.1, help="the new noise RMS over the old")
+    q.add_argument("--stems", default="", help="comma-separated stems (default: every one)")
     a = p.parse_args(argv)
+    if a.cmd == "quieter":
+        if not 0.0 < a.factor <= 1.0:
+            print("error: --factor must be in (0, 1]", file=sys.stderr)
+            return 2
+        stems = [x.strip() for x in a.stems.split(",") if x.strip()] or sorted(
+            f[:-len(".truth.json")] for f in os.listdir(a.src) if f.endswith(".truth.json"))
+        os.makedirs(a.out, exist_ok=True)
+        for i, stem in enumerate(stems):
+            try:
+                quieter(a.src, a.out, stem, a.factor)
+            except (OSError, ValueError, KeyError) as e:
+                print(f"error: {stem}: {e}", file=sys.stderr)
+                return 1
+            print(f"[{i + 1}/{len(stems)}] {stem}: noise x{a.factor}", flush=True)
+        return 0
     classes = [c.strip() for c in a.classes.split(",") if c.strip()]
     for c in classes:
         if c not in CLASSES:
