@@ -242,6 +242,33 @@ pub fn refsim_tests() -> Result<()> {
         "target/refsim-ci-attraction",
         &["--classes", "surface-attraction", "--first-seed", "17"],
     )?;
+    // A stiffening force curve that the nominal's k_a and contact height hide at refsim's
+    // noise (seed 13), and the same curve with a tenth of its noise (`refsim quieter`).
+    let stiffening_s = refsim_generate(
+        &py,
+        "target/refsim-ci-stiffening",
+        &["--classes", "nonlinear-stiffness", "--first-seed", "13"],
+    )?;
+    let quiet_dir = firmware::root().join("target/refsim-ci-stiffening-quiet");
+    if quiet_dir.exists() {
+        std::fs::remove_dir_all(&quiet_dir).map_err(|e| format!("{}: {e}", quiet_dir.display()))?;
+    }
+    let quiet_s = quiet_dir.to_string_lossy().into_owned();
+    run_in_root(
+        &py,
+        &[
+            "-m",
+            "refsim",
+            "quieter",
+            "--from",
+            &stiffening_s,
+            "--out",
+            &quiet_s,
+            "--factor",
+            "0.1",
+        ],
+        &[],
+    )?;
     cargo_env(
         &[
             "test",
@@ -259,6 +286,8 @@ pub fn refsim_tests() -> Result<()> {
             ("VISCO_REFSIM_SMOOTH_DIR", &smooth_s),
             ("VISCO_REFSIM_ADHESION_DIR", &adhesion_s),
             ("VISCO_REFSIM_ATTRACTION_DIR", &attraction_s),
+            ("VISCO_REFSIM_STIFFENING_DIR", &stiffening_s),
+            ("VISCO_REFSIM_STIFFENING_QUIET_DIR", &quiet_s),
         ],
     )
 }
