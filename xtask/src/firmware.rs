@@ -1510,8 +1510,9 @@ pub const CEILING_SVE: f64 = 282.0;
 /// 512 / 612 before the copy-free hand-over, 542 / 634 before the cheaper arithmetic), and
 /// that goal (a 1 MHz loop at half of a 400 MHz core).
 pub const CEILING_AVG_DIVE: f64 = 277.0;
-/// See [`CEILING_AVG_DIVE`].
-pub const CEILING_AVG_SVE: f64 = 391.0;
+/// See [`CEILING_AVG_DIVE`]. Round 9: SVE's information sums from one sample in 2 at 1 MHz
+/// (a re-bless, judged on the fault suite's paired means over 40 seeds): 387.0 → 378.6.
+pub const CEILING_AVG_SVE: f64 = 382.0;
 /// See [`CEILING_AVG_DIVE`].
 pub const GOAL_AVG: f64 = 200.0;
 
@@ -1676,12 +1677,12 @@ pub const TABLE: [(Machine, Number, Estimator); 8] = [
 /// 4 857 before the copy-free block hand-over and the inlined sequencers; 4 081 / 4 901
 /// before issue 14's read-out sums per block and s²Z/Λ on demand).
 pub const CEILING_Q32_M3_DIVE: f64 = 558.0;
-/// See [`CEILING_Q32_M3_DIVE`].
-pub const CEILING_Q32_M3_SVE: f64 = 1_322.0;
+/// See [`CEILING_Q32_M3_DIVE`]. Round 9 (SVE's sums at stride 2 at 1 MHz): 1 309.2 → 1 302.3.
+pub const CEILING_Q32_M3_SVE: f64 = 1_315.0;
 /// See [`CEILING_Q32_M3_DIVE`]; the gradient estimator.
 pub const CEILING_Q32_M3_GRADIENT_DIVE: f64 = 558.0;
-/// See [`CEILING_Q32_M3_DIVE`]; the gradient estimator.
-pub const CEILING_Q32_M3_GRADIENT_SVE: f64 = 1_322.0;
+/// See [`CEILING_Q32_M3_DIVE`]; the gradient estimator (round 9: 1 307.4 → 1 301.4).
+pub const CEILING_Q32_M3_GRADIENT_SVE: f64 = 1_315.0;
 
 /// Issue 8's accuracy goal: within this % of each property's maximum of the f64 reference.
 pub const FIXED_ERROR_GOAL_PCT: f64 = 0.5;

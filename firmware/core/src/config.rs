@@ -776,16 +776,20 @@ impl Config {
         // below) and the tones at f₀ and f₀/4, so 4 µs is a twelfth of the fastest period and
         // adjacent prefiltered samples carry nearly the same information (issue 14, round 7:
         // the demo's DIVE RMS errors unchanged to 10⁻⁴ point; the prefilters still take every
-        // sample). SVE keeps every sample: the same stride there moved the fault suite's SVE
-        // rows (force-limit recovery 0.4 → 4.2 ms, worst of 5 seeds) for −10 per sample.
+        // sample). SVE's own stride is 2 µs (below).
         let stride = (4e-6 * sample_rate_hz + 0.5) as u32;
         let dive_est =
             EstimatorConfig::derived(dive_phi, 10e-3, 20e-6, sample_rate_hz, nominal_dive)
                 .in_blocks(block, sample_rate_hz)
                 .with_stride(stride);
         // SVE: memory 2 ms, a tenth of the paper's pixel time (1 s line / 50 px = 20 ms).
+        // Its information sums from one sample every 2 µs (a stride of 2 at 1 MHz, 1 at the
+        // demo's 500 kHz; issue 14, round 9: judged on the fault suite's paired means over 40
+        // seeds at 1 MHz).
+        let sve_stride = (2e-6 * sample_rate_hz + 0.5) as u32;
         let sve_est = EstimatorConfig::derived(sve_phi, 2e-3, 20e-6, sample_rate_hz, nominal_sve)
-            .in_blocks(block, sample_rate_hz);
+            .in_blocks(block, sample_rate_hz)
+            .with_stride(sve_stride);
 
         // Contact detector: thermal noise √(k_B·T/K) = 0.15 nm sits at f₀; a 5 kHz low-pass
         // cuts it to a few 10 pm, so γ = 0.3 nm (0.05 nN) is many σ yet fires within ~15 nm of

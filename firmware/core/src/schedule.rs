@@ -395,7 +395,9 @@ fn prefilter_strided<T: Real, const S: usize>(
     own: &mut [Sample<T>],
 ) -> (u32, u32) {
     let mut f = 0;
-    let mut all = if S == 1 { u32::MAX } else { 0 };
+    // Every sample's flags and-ed (stride 1 and 2: SVE's usual block at 500 kHz and 1 MHz,
+    // which the uniform pass takes; DIVE's stride 4 does without).
+    let mut all = if S <= 2 { u32::MAX } else { 0 };
     let mut groups = own.chunks_exact_mut(S);
     for g in groups.by_ref() {
         for (i, x) in g.iter_mut().enumerate() {
@@ -406,7 +408,7 @@ fn prefilter_strided<T: Real, const S: usize>(
             };
             let flags = prefilter_slot(p, reg, x, want);
             f |= flags;
-            if S == 1 {
+            if S <= 2 {
                 all &= flags;
             }
         }
@@ -418,7 +420,11 @@ fn prefilter_strided<T: Real, const S: usize>(
         } else {
             SAMPLE_HP | SAMPLE_HP_REST
         };
-        f |= prefilter_slot(p, reg, x, want);
+        let flags = prefilter_slot(p, reg, x, want);
+        f |= flags;
+        if S <= 2 {
+            all &= flags;
+        }
     }
     (f, all)
 }
@@ -649,7 +655,7 @@ impl<T: Real> EstimatorTask<T> {
         hp_flags |= own_flags;
         // Every own sample through the high-passes into the sums (SVE's usual block, stride
         // 1): the pass below without a test per sample.
-        let uniform = mask == 0
+        let uniform = mask <= 1
             && own_flags & SAMPLE_HP_REST == 0
             && all_flags & (SAMPLE_HP | SAMPLE_EST) == SAMPLE_HP | SAMPLE_EST;
         self.reg = reg;
@@ -676,20 +682,36 @@ impl<T: Real> EstimatorTask<T> {
                     // in `high_pass`'s order, without its tests).
                     // Two samples a turn: the filters' old and new states in alternating
                     // registers, not moved over every sample.
+                    // At stride 2 (SVE at 1 MHz) the second of a pair only through the
+                    // high-passes.
                     let mut pairs = own.chunks_exact(2);
-                    for pair in pairs.by_ref() {
-                        for x in pair {
+                    if mask == 0 {
+                        for pair in pairs.by_ref() {
+                            for x in pair {
+                                let w = hp[0].update(a, x.z);
+                                let phi = [hp[1].update(a, x.u), hp[2].update(a, x.r)];
+                                s.add(ip, ai, w, &phi);
+                            }
+                        }
+                        n = (own.len() & !1) as u32;
+                    } else {
+                        for pair in pairs.by_ref() {
+                            let [x, y] = pair else { continue };
                             let w = hp[0].update(a, x.z);
                             let phi = [hp[1].update(a, x.u), hp[2].update(a, x.r)];
                             s.add(ip, ai, w, &phi);
+                            hp[0].update(a, y.z);
+                            hp[1].update(a, y.u);
+                            hp[2].update(a, y.r);
                         }
+                        n = (own.len() / 2) as u32;
                     }
                     for x in pairs.remainder() {
                         let w = hp[0].update(a, x.z);
                         let phi = [hp[1].update(a, x.u), hp[2].update(a, x.r)];
                         s.add(ip, ai, w, &phi);
+                        n += 1;
                     }
-                    n = own.len() as u32;
                 } else if mask == 0 {
                     // Every sample (the loop without the stride's test).
                     for x in own {

@@ -1,0 +1,101 @@
+#!/usr/bin/env python3
+"""Paired comparison of two `visco faults --seeds N --json F` reports (issue 14, round 9).
+
+    python3 firmware/tools/paired_faults.py OLD.json NEW.json
+    python3 firmware/tools/paired_faults.py --selftest
+
+The runs of a class come in seed order (1..N), so the k-th run of a class in OLD and NEW is
+the same seed. Per class and per quantity (max_force_n in nN, recovery_s in ms): mean old,
+mean new, the paired mean difference d = new - old, its standard error sd(d)/sqrt(n), and the
+verdict: "ok" when mean(d) <= 0 or mean(d) <= 2 SE, else "WORSE". A run that is unbounded or
+at/over the force limit, or a recovery that is None in NEW but not in OLD, is "UNSAFE"/"WORSE".
+Exit status 1 when any verdict is not "ok".
+"""
+import json
+import math
+import sys
+from collections import OrderedDict
+
+
+def by_class(report):
+    out = OrderedDict()
+    for r in report["runs"]:
+        out.setdefault(r["class"], []).append(r)
+    return out
+
+
+def paired(old, new):
+    d = [b - a for a, b in zip(old, new)]
+    n = len(d)
+    m = sum(d) / n
+    sd = math.sqrt(sum((x - m) ** 2 for x in d) / (n - 1)) if n > 1 else 0.0
+    se = sd / math.sqrt(n)
+    return sum(old) / n, sum(new) / n, m, se, ("ok" if m <= 0 or m <= 2 * se else "WORSE")
+
+
+def compare(old_rep, new_rep):
+    rows, ok = [], True
+    old_c, new_c = by_class(old_rep), by_class(new_rep)
+    for cls, olds in old_c.items():
+        news = new_c[cls]
+        assert len(olds) == len(news), cls
+        unsafe = [i + 1 for i, r in enumerate(news)
+                  if not r["bounded"] or not r["max_force_n"] < r["force_limit_n"]]
+        f = paired([r["max_force_n"] * 1e9 for r in olds], [r["max_force_n"] * 1e9 for r in news])
+        lost = [i + 1 for i, (a, b) in enumerate(zip(olds, news))
+                if a["recovery_s"] is not None and b["recovery_s"] is None]
+        pairs = [(a["recovery_s"] * 1e3, b["recovery_s"] * 1e3) for a, b in zip(olds, news)
+                 if a["recovery_s"] is not None and b["recovery_s"] is not None]
+        r = paired([p[0] for p in pairs], [p[1] for p in pairs]) if pairs else None
+        if r and lost:
+            r = r[:4] + ("WORSE",)
+        verdict = "UNSAFE" if unsafe else ("ok" if f[4] == "ok" and (r is None or r[4] == "ok") else "WORSE")
+        ok &= verdict == "ok"
+        rows.append((cls, len(olds), unsafe, f, r, len(pairs), lost, verdict))
+    return rows, ok
+
+
+def show(rows):
+    print("| class | n | force old / new (nN) | d ± SE (nN) | recovery old / new (ms) | d ± SE (ms) | verdict |")
+    print("|---|---|---|---|---|---|---|")
+    for cls, n, unsafe, f, r, nr, lost, verdict in rows:
+        rec = ("%.3f / %.3f | %+.3f ± %.3f%s" % (r[0], r[1], r[2], r[3],
+               "" if nr == n else " (%d pairs)" % nr)) if r else "— | —"
+        extra = (" unsafe seeds %s" % unsafe if unsafe else "") + (" lost recovery %s" % lost if lost else "")
+        print("| %s | %d | %.3f / %.3f | %+.3f ± %.3f | %s | %s%s |"
+              % (cls, n, f[0], f[1], f[2], f[3], rec, verdict, extra))
+
+
+def selftest():
+    def rep(cls, forces, recs, bounded=True):
+        return [{"class": cls, "bounded": bounded, "max_force_n": x * 1e-9,
+                 "force_limit_n": 150e-9, "recovery_s": None if y is None else y * 1e-3}
+                for x, y in zip(forces, recs)]
+    old = {"runs": rep("a", [1, 2, 3, 4], [1, 1, 1, 1]) + rep("b", [1, 2, 3, 4], [1, 1, 1, 1])}
+    # a: forces +0.1 each (sd 0): worse; b: d = [+1, -1, +1, -1] -> mean 0: ok.
+    new = {"runs": rep("a", [1.1, 2.1, 3.1, 4.1], [1, 1, 1, 1])
+           + rep("b", [2, 1, 4, 3], [1, 1, 1, 1])}
+    rows, ok = compare(old, new)
+    assert not ok and rows[0][7] == "WORSE" and rows[1][7] == "ok", rows
+    assert abs(rows[0][3][2] - 0.1) < 1e-9 and abs(rows[1][3][2]) < 1e-12
+    # d = [1, 0, 0, 0]: mean 0.25, SE 0.25 -> within 2 SE: ok.
+    rows, ok = compare({"runs": rep("c", [0, 0, 0, 0], [1, 1, 1, 1])},
+                       {"runs": rep("c", [1, 0, 0, 0], [1, 1, 1, 1])})
+    assert ok and abs(rows[0][3][3] - 0.25) < 1e-12, rows
+    # A lost recovery and an over-limit run.
+    rows, ok = compare({"runs": rep("d", [1, 1], [1, 1])}, {"runs": rep("d", [1, 1], [1, None])})
+    assert not ok and rows[0][7] == "WORSE"
+    rows, ok = compare({"runs": rep("e", [1, 1], [1, 1])}, {"runs": rep("e", [1, 151], [1, 1])})
+    assert not ok and rows[0][7] == "UNSAFE"
+    print("selftest ok")
+
+
+if __name__ == "__main__":
+    if sys.argv[1:] == ["--selftest"]:
+        selftest()
+        sys.exit(0)
+    if len(sys.argv) != 3:
+        sys.exit(__doc__)
+    rows, ok = compare(json.load(open(sys.argv[1])), json.load(open(sys.argv[2])))
+    show(rows)
+    sys.exit(0 if ok else 1)
