@@ -204,6 +204,8 @@ pub fn refsim_tests() -> Result<()> {
         &[],
     )?;
     run_in_root(&py, &["-m", "pytest", "-q", "refsim/tests"], &[])?;
+    // The fault suite's paired rule (issue 14 round 9) on its toy inputs.
+    run_in_root(&py, &["firmware/tools/paired_faults.py", "--selftest"], &[])?;
     // Every class but hydrodynamic drag: on a discrete-bed force curve refsim's drag
     // calibration reaches only 0.2x the noise (a generator defect, issue 13), which the
     // magnitude check of the test would rightly refuse.
