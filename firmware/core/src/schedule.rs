@@ -398,23 +398,9 @@ fn prefilter_strided<T: Real, const S: usize>(
     // Every sample's flags and-ed (stride 1 and 2: SVE's usual block at 500 kHz and 1 MHz,
     // which the uniform pass takes; DIVE's stride 4 does without).
     let mut all = if S <= 2 { u32::MAX } else { 0 };
-    let mut groups = own.chunks_exact_mut(S);
-    for g in groups.by_ref() {
-        for (i, x) in g.iter_mut().enumerate() {
-            let want = if i == 0 {
-                u32::MAX
-            } else {
-                SAMPLE_HP | SAMPLE_HP_REST
-            };
-            let flags = prefilter_slot(p, reg, x, want);
-            f |= flags;
-            if S <= 2 {
-                all &= flags;
-            }
-        }
-    }
-    // (Empty with a stride of 1.)
-    for (i, x) in groups.into_remainder().iter_mut().enumerate() {
+    // One slot at place `i` of its group: the first at the stride's place, the others for
+    // the high-passes only.
+    let mut slot = |i: usize, x: &mut Sample<T>| {
         let want = if i == 0 {
             u32::MAX
         } else {
@@ -425,6 +411,16 @@ fn prefilter_strided<T: Real, const S: usize>(
         if S <= 2 {
             all &= flags;
         }
+    };
+    let mut groups = own.chunks_exact_mut(S);
+    for g in groups.by_ref() {
+        for (i, x) in g.iter_mut().enumerate() {
+            slot(i, x);
+        }
+    }
+    // (Empty with a stride of 1.)
+    for (i, x) in groups.into_remainder().iter_mut().enumerate() {
+        slot(i, x);
     }
     (f, all)
 }
