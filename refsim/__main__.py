@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 import time
 import zlib
@@ -126,9 +127,7 @@ def quieter(src: str, out: str, stem: str, factor: float) -> str:
                         "note": "noise-free D plus white Gaussian noise, no ADC grid"}
     with open(os.path.join(out, f"{stem}.truth.json"), "w") as f:
         json.dump(truth, f, indent=1)
-    with open(os.path.join(src, f"{stem}.truth.csv")) as fi, \
-            open(os.path.join(out, f"{stem}.truth.csv"), "w") as fo:
-        fo.write(fi.read())
+    shutil.copyfile(os.path.join(src, f"{stem}.truth.csv"), os.path.join(out, f"{stem}.truth.csv"))
     os.replace(tmp, os.path.join(out, f"{stem}.csv"))
     return stem
 

@@ -251,11 +251,7 @@ pub fn refsim_tests() -> Result<()> {
         "target/refsim-ci-stiffening",
         &["--classes", "nonlinear-stiffness", "--first-seed", "13"],
     )?;
-    let quiet_dir = firmware::root().join("target/refsim-ci-stiffening-quiet");
-    if quiet_dir.exists() {
-        std::fs::remove_dir_all(&quiet_dir).map_err(|e| format!("{}: {e}", quiet_dir.display()))?;
-    }
-    let quiet_s = quiet_dir.to_string_lossy().into_owned();
+    let quiet_s = emptied("target/refsim-ci-stiffening-quiet")?;
     run_in_root(
         &py,
         &[
@@ -297,11 +293,7 @@ pub fn refsim_tests() -> Result<()> {
 /// `python -m refsim generate` of one seed per class (discrete beds, two jobs) into `rel` under
 /// the root, emptied first; `extra` adds the class list and options. Returns the directory.
 fn refsim_generate(py: &str, rel: &str, extra: &[&str]) -> Result<String> {
-    let dir = firmware::root().join(rel);
-    if dir.exists() {
-        std::fs::remove_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    }
-    let dir_s = dir.to_string_lossy().into_owned();
+    let dir_s = emptied(rel)?;
     let mut args = vec![
         "-m",
         "refsim",
@@ -317,6 +309,15 @@ fn refsim_generate(py: &str, rel: &str, extra: &[&str]) -> Result<String> {
     args.extend_from_slice(extra);
     run_in_root(py, &args, &[])?;
     Ok(dir_s)
+}
+
+/// The directory `rel` under the root, its old contents removed (the writer makes it).
+fn emptied(rel: &str) -> Result<String> {
+    let dir = firmware::root().join(rel);
+    if dir.exists() {
+        std::fs::remove_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    }
+    Ok(dir.to_string_lossy().into_owned())
 }
 
 fn cargo_env(args: &[&str], env: &[(&str, &str)]) -> Result<()> {
