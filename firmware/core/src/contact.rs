@@ -86,6 +86,12 @@ impl<T: Real> ContactDetector<T> {
         self.lp += p.lowpass * (d - self.lp);
     }
 
+    /// [`Self::lowpass`] with another weight (the DIVE force limit's, per check step).
+    #[inline(always)]
+    pub fn lowpass_with(&mut self, weight: T, d: T) {
+        self.lp += weight * (d - self.lp);
+    }
+
     /// Take one sample of D and the tip position Z = U − D at the same instant.
     #[inline(always)]
     pub fn update(&mut self, p: &ContactParams<T>, d: T, z: T) -> ContactState<T> {

@@ -386,6 +386,12 @@ struct Params<T> {
     sve: SveParams<T>,
     guard_dive: GuardParams<T>,
     guard_sve: GuardParams<T>,
+    /// The DIVE force limit's low-pass of the deflection per check (the contact detector's
+    /// corner at the rate of the checks: one sample in `force_check`).
+    force_lowpass: T,
+    /// Samples per check of the DIVE force limit (`FaultConfig::force_check_stride` with
+    /// blocks, 1 without: the checks' clock is the block clock's tick).
+    force_check: u32,
     /// Weight per sample of the slow force low-pass (corner f₂/20, so the tones' swing of the
     /// deflection does not reach the surface check).
     force_slow_weight: T,
@@ -405,6 +411,9 @@ struct ModeNow<T> {
     /// The input check's `spike` and `hold` ([`GuardParams`]).
     spike: T,
     hold: u32,
+    /// The DIVE force limit's stride minus one (0 or 1; 0 in SVE): a sample whose block
+    /// clock tick has these bits set is between two of its checks.
+    check_mask: u32,
     /// SVE with blocks and the decoupled regressor.
     sve_blocks: bool,
     /// `sve_blocks`, the surface held, the pixel's sums begun (their base set) and y settled
@@ -721,6 +730,13 @@ impl<T: SineTable> Controller<T> {
 
         let u_span = cfg.limits.u_max_m - cfg.limits.u_min_m;
         let f = &cfg.faults;
+        // The DIVE force limit's stride: its clock is the block clock's tick, which stands
+        // still with blocks of one.
+        let force_check = if cfg.dive.estimator.decimation > 1 {
+            f.force_check_stride.max(1)
+        } else {
+            1
+        };
         let guard = |spike_m: f64, e: &crate::config::EstimatorConfig| {
             let dec = e.decimation.max(1) as f64;
             let updates_per_memory = fs / (e.beta_per_s * dec);
@@ -852,6 +868,12 @@ impl<T: SineTable> Controller<T> {
             },
             guard_dive: guard(cfg.faults.spike_dive_m, &d.estimator),
             guard_sve: guard(cfg.faults.spike_sve_m, &s.estimator),
+            force_lowpass: t(1.0
+                - libm::exp(
+                    -2.0 * core::f64::consts::PI * cfg.contact.lowpass_hz * f64::from(force_check)
+                        / fs,
+                )),
+            force_check,
             force_slow_weight: t(
                 1.0 - libm::exp(-2.0 * core::f64::consts::PI * s.excitation.f2_hz / 20.0 / fs)
             ),
@@ -916,6 +938,7 @@ impl<T: SineTable> Controller<T> {
             last: p.dec_dive.saturating_sub(1),
             spike: p.guard_dive.spike,
             hold: p.guard_dive.hold,
+            check_mask: p.force_check - 1,
             sve_blocks: false,
             sve_fast: false,
         };
@@ -1219,14 +1242,15 @@ impl<T: SineTable> Controller<T> {
     fn set_mode(&mut self, mode: Option<Mode>, between: bool) {
         let was_blocks = self.now.last > 0;
         self.mode = mode;
-        let (gp, dec) = match mode {
-            Some(Mode::Sve) => (&self.p.guard_sve, self.p.dec_sve),
-            _ => (&self.p.guard_dive, self.p.dec_dive),
+        let (gp, dec, check) = match mode {
+            Some(Mode::Sve) => (&self.p.guard_sve, self.p.dec_sve, 1),
+            _ => (&self.p.guard_dive, self.p.dec_dive, self.p.force_check),
         };
         self.now = ModeNow {
             last: dec.saturating_sub(1),
             spike: gp.spike,
             hold: gp.hold,
+            check_mask: check - 1,
             sve_blocks: mode == Some(Mode::Sve)
                 && dec > 1
                 && matches!(self.p.sve.regressor, SveRegressor::Decoupled),
@@ -1399,7 +1423,16 @@ impl<T: SineTable> Controller<T> {
                 // t ≥ dwell_end, so every later sample of it starts below dwell_end).
                 self.dive.t = self.dive.t.wrapping_add(1);
                 let t = self.dive.t;
-                let u = self.dive_dwell(t, d, z, input_ok, &mut st, sink, &mut fed);
+                let u = self.dive_dwell(
+                    t,
+                    d,
+                    z,
+                    input_ok,
+                    self.force_check(),
+                    &mut st,
+                    sink,
+                    &mut fed,
+                );
                 if !fed {
                     self.feed(sink, z, T::ZERO, 0);
                 }
@@ -1425,7 +1458,8 @@ impl<T: SineTable> Controller<T> {
             }
             Hot::None => match self.mode {
                 Some(Mode::Dive) => {
-                    let u = self.dive_step(d, z, input_ok, &mut st, sink, &mut fed);
+                    let check = self.force_check();
+                    let u = self.dive_step(d, z, input_ok, check, &mut st, sink, &mut fed);
                     if !fed {
                         self.feed(sink, z, T::ZERO, 0);
                     }
@@ -1633,11 +1667,13 @@ impl<T: SineTable> Controller<T> {
     // and restored 9 core and 8 double FPU registers and passed the state through memory
     // (~23 instructions per sample, `cargo xtask bench`).
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
     fn dive_step(
         &mut self,
         d: T,
         z: T,
         input_ok: bool,
+        check: bool,
         st: &mut u32,
         sink: &mut impl SampleSink<T>,
         fed: &mut bool,
@@ -1686,7 +1722,7 @@ impl<T: SineTable> Controller<T> {
                 *st |= status::CONTACT;
                 // The tip's depth from Z itself (the prefiltered Z/Λ is the task's).
                 let depth = self.dive.h - z;
-                if self.dive_force_limit(d, &mut u, st) {
+                if self.dive_force_limit(check, d, &mut u, st) {
                     // Retracted.
                 } else if depth >= self.p.dive.indent {
                     self.start_dwell(t, u);
@@ -1700,7 +1736,7 @@ impl<T: SineTable> Controller<T> {
                     }
                 }
             }
-            Phase::Dwell => return self.dive_dwell(t, d, z, input_ok, st, sink, fed),
+            Phase::Dwell => return self.dive_dwell(t, d, z, input_ok, check, st, sink, fed),
             Phase::Retract => {
                 u += self.p.retract_step;
                 if u >= self.dive.u_safe {
@@ -1724,13 +1760,14 @@ impl<T: SineTable> Controller<T> {
         d: T,
         z: T,
         input_ok: bool,
+        check: bool,
         st: &mut u32,
         sink: &mut impl SampleSink<T>,
         fed: &mut bool,
     ) -> T {
         let mut u = self.dive.u_cmd;
         *st |= status::CONTACT;
-        if self.dive_force_limit(d, &mut u, st) {
+        if self.dive_force_limit(check, d, &mut u, st) {
             self.dive.u_cmd = u;
             return u + self.exc.next(&self.p.dive.exc, sink);
         }
@@ -1806,12 +1843,25 @@ impl<T: SineTable> Controller<T> {
         u + self.exc.next(&self.p.dive.exc, sink)
     }
 
+    /// The DIVE force limit's clock (issue 14, round 10): true when this step is one of its
+    /// checks, by the block clock's tick, which `block_due` advanced for this step (read in
+    /// the DIVE paths only: the SVE ones do not need it).
+    #[inline(always)]
+    fn force_check(&self) -> bool {
+        self.tick & self.now.check_mask == 0
+    }
+
     /// The DIVE force check (Indent and Dwell): the static force from the low-passed
     /// deflection against the free one; above the limit the tip jumps clear of the sample in
-    /// this very sample and the tap ends. True when it did.
+    /// this very sample and the tap ends. True when it did. Only at a check (`check`: one
+    /// sample in `FaultConfig::force_check_stride`, issue 14, round 10), its low-pass at the
+    /// checks' rate; between two checks false.
     #[inline(always)]
-    fn dive_force_limit(&mut self, d: T, u: &mut T, st: &mut u32) -> bool {
-        self.contact.lowpass(&self.p.contact, d);
+    fn dive_force_limit(&mut self, check: bool, d: T, u: &mut T, st: &mut u32) -> bool {
+        if !check {
+            return false;
+        }
+        self.contact.lowpass_with(self.p.force_lowpass, d);
         // `K·(d_free − lp) > force_max` decided on lp alone, exactly (the threshold set with
         // d_free per tap): one comparison where the force took a subtraction, a product and
         // two more loads per sample.
