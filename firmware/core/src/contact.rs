@@ -83,7 +83,7 @@ impl<T: Real> ContactDetector<T> {
     /// Only the low-pass, for a confirmed contact (which `update` would leave as it is).
     #[inline(always)]
     pub fn lowpass(&mut self, p: &ContactParams<T>, d: T) {
-        self.lp += p.lowpass * (d - self.lp);
+        self.lowpass_with(p.lowpass, d);
     }
 
     /// [`Self::lowpass`] with another weight (the DIVE force limit's, per check step).

@@ -30,6 +30,7 @@
 use crate::config::{Config, ConfigError, DiveRegressor, SveRegressor};
 use crate::contact::{ContactDetector, ContactParams, ContactState};
 use crate::depth::{DepthController, DepthParams};
+use crate::discretize::one_pole_weight;
 use crate::estimator::Estimator;
 use crate::excitation::{Excitation, ExcitationParams, SineTable, Tone};
 use crate::geometry::mean_sag;
@@ -798,9 +799,9 @@ impl<T: SineTable> Controller<T> {
                 period_us,
             ),
             contact: ContactParams {
-                lowpass: t(
-                    1.0 - libm::exp(-2.0 * core::f64::consts::PI * cfg.contact.lowpass_hz / fs)
-                ),
+                lowpass: t(one_pole_weight(
+                    2.0 * core::f64::consts::PI * cfg.contact.lowpass_hz / fs,
+                )),
                 gamma: t(cfg.contact.gamma_m * nm),
                 gamma_plus: t(cfg.contact.gamma_plus_m * nm),
             },
@@ -868,15 +869,13 @@ impl<T: SineTable> Controller<T> {
             },
             guard_dive: guard(cfg.faults.spike_dive_m, &d.estimator),
             guard_sve: guard(cfg.faults.spike_sve_m, &s.estimator),
-            force_lowpass: t(1.0
-                - libm::exp(
-                    -2.0 * core::f64::consts::PI * cfg.contact.lowpass_hz * f64::from(force_check)
-                        / fs,
-                )),
+            force_lowpass: t(one_pole_weight(
+                2.0 * core::f64::consts::PI * cfg.contact.lowpass_hz * f64::from(force_check) / fs,
+            )),
             force_check,
-            force_slow_weight: t(
-                1.0 - libm::exp(-2.0 * core::f64::consts::PI * s.excitation.f2_hz / 20.0 / fs)
-            ),
+            force_slow_weight: t(one_pole_weight(
+                2.0 * core::f64::consts::PI * s.excitation.f2_hz / 20.0 / fs,
+            )),
             lost_force: t(cfg.faults.lost_force_n / units::FORCE),
             dec_dive: d.estimator.decimation.max(1),
             dec_sve: s.estimator.decimation.max(1),

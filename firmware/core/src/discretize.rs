@@ -17,6 +17,13 @@
 //! changes), never at loop rate, so it may be slow; it must be accurate: the Taylor series is
 //! summed to machine precision after scaling the matrix to a norm below 1/2.
 
+/// The weight `a` of a one-pole low-pass `y += a·(x − y)` stepped every period: the exact
+/// discretisation of `τ·ẏ = x − y` with a held input, `a = 1 − e^{−ω·h}`, from `ω·h` (the
+/// corner's angular frequency times the period, 2π·f_c·h).
+pub fn one_pole_weight(omega_h: f64) -> f64 {
+    1.0 - libm::exp(-omega_h)
+}
+
 /// One period of an exactly discretised two-state linear system with a scalar input.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Discrete2 {

@@ -263,8 +263,9 @@ impl<T: Real> Observer<T> {
         let fs = cfg.sample_rate_hz;
         let t = |v: f64| T::from_f64(v);
         let nm = 1.0 / units::LENGTH;
-        let lowpass_coeff =
-            1.0 - libm::exp(-2.0 * core::f64::consts::PI * cfg.contact.lowpass_hz / fs);
+        let lowpass_coeff = crate::discretize::one_pole_weight(
+            2.0 * core::f64::consts::PI * cfg.contact.lowpass_hz / fs,
+        );
         let p = Params {
             to_internal: t(nm),
             to_m: t(units::LENGTH),
