@@ -9,6 +9,8 @@ the same seed. Per class and per quantity (max_force_n in nN, recovery_s in ms):
 mean new, the paired mean difference d = new - old, its standard error sd(d)/sqrt(n), and the
 verdict: "ok" when mean(d) <= 0 or mean(d) <= 2 SE, else "WORSE". A run that is unbounded or
 at/over the force limit, or a recovery that is None in NEW but not in OLD, is "UNSAFE"/"WORSE".
+A class whose runs carry `retract_s` (dive-force-limit, issue 14 round 11: the time from the
+contact to the retract on the force limit) is judged on it in place of the recovery.
 Exit status 1 when any verdict is not "ok".
 """
 import json
@@ -33,6 +35,12 @@ def paired(old, new):
     return sum(old) / n, sum(new) / n, m, se, ("ok" if m <= 0 or m <= 2 * se else "WORSE")
 
 
+def when(r):
+    """The run's time quantity (s): its retract on the force limit when it has one, else its
+    recovery."""
+    return r["recovery_s"] if r.get("retract_s") is None else r["retract_s"]
+
+
 def compare(old_rep, new_rep):
     rows, ok = [], True
     old_c, new_c = by_class(old_rep), by_class(new_rep)
@@ -43,9 +51,9 @@ def compare(old_rep, new_rep):
                   if not r["bounded"] or not r["max_force_n"] < r["force_limit_n"]]
         f = paired([r["max_force_n"] * 1e9 for r in olds], [r["max_force_n"] * 1e9 for r in news])
         lost = [i + 1 for i, (a, b) in enumerate(zip(olds, news))
-                if a["recovery_s"] is not None and b["recovery_s"] is None]
-        pairs = [(a["recovery_s"] * 1e3, b["recovery_s"] * 1e3) for a, b in zip(olds, news)
-                 if a["recovery_s"] is not None and b["recovery_s"] is not None]
+                if when(a) is not None and when(b) is None]
+        pairs = [(when(a) * 1e3, when(b) * 1e3) for a, b in zip(olds, news)
+                 if when(a) is not None and when(b) is not None]
         r = paired([p[0] for p in pairs], [p[1] for p in pairs]) if pairs else None
         if r and lost:
             r = r[:4] + ("WORSE",)
@@ -56,7 +64,7 @@ def compare(old_rep, new_rep):
 
 
 def show(rows):
-    print("| class | n | force old / new (nN) | d ± SE (nN) | recovery old / new (ms) | d ± SE (ms) | verdict |")
+    print("| class | n | force old / new (nN) | d ± SE (nN) | recovery (retract) old / new (ms) | d ± SE (ms) | verdict |")
     print("|---|---|---|---|---|---|---|")
     for cls, n, unsafe, f, r, nr, lost, verdict in rows:
         rec = ("%.3f / %.3f | %+.3f ± %.3f%s" % (r[0], r[1], r[2], r[3],
@@ -87,6 +95,14 @@ def selftest():
     assert not ok and rows[0][7] == "WORSE"
     rows, ok = compare({"runs": rep("e", [1, 1], [1, 1])}, {"runs": rep("e", [1, 151], [1, 1])})
     assert not ok and rows[0][7] == "UNSAFE"
+    # Runs with a retract are judged on it (the recovery None in both): 1 ms later is worse.
+    def ret(rs, ts):
+        for r, t in zip(rs, ts):
+            r["recovery_s"], r["retract_s"] = None, t * 1e-3
+        return rs
+    rows, ok = compare({"runs": ret(rep("f", [1, 1], [1, 1]), [6, 6])},
+                       {"runs": ret(rep("f", [1, 1], [1, 1]), [7, 7])})
+    assert not ok and rows[0][7] == "WORSE" and abs(rows[0][4][2] - 1.0) < 1e-9, rows
     print("selftest ok")
 
 

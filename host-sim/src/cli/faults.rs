@@ -72,7 +72,26 @@ pub fn run(args: FaultsArgs) -> CliResult {
             force * 1e9,
             runs[0].force_limit_n * 1e9,
             flag_names(flags),
-            recovery.map_or("not recovered".into(), |r| format!("{:.1}", r * 1e3)),
+            if class == FaultClass::DiveForceLimit {
+                // Its column: the retract on the limit, from the contact (ms, worst), and the
+                // true static force there (nN, highest).
+                let f = runs
+                    .iter()
+                    .filter_map(|o| o.retract_force_n)
+                    .fold(0.0, f64::max);
+                runs.iter()
+                    .map(|o| o.retract_s)
+                    .try_fold(0.0f64, |w, r| r.map(|r| w.max(r)))
+                    .map_or("no retract".into(), |r| {
+                        format!(
+                            "retract {:.3} ms after contact at {:.1} nN",
+                            r * 1e3,
+                            f * 1e9
+                        )
+                    })
+            } else {
+                recovery.map_or("not recovered".into(), |r| format!("{:.1}", r * 1e3))
+            },
         );
         all.extend(runs);
     }

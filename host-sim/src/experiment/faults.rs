@@ -41,11 +41,16 @@ pub enum FaultClass {
     ForceLimit,
     /// A 40 nm step of the detector's offset during a DIVE dwell, which misleads the estimator.
     OffsetStep,
+    /// A DIVE tap into a sample 100 times stiffer than the soft bed (the stiff inclusion's
+    /// material under the whole tap): the force limit must retract the tip. Judged by the
+    /// peak force and the time from the force crossing the limit to the retract
+    /// ([`FaultOutcome::retract_s`]); no estimates to recover.
+    DiveForceLimit,
 }
 
 impl FaultClass {
     /// Every class.
-    pub const ALL: [FaultClass; 7] = [
+    pub const ALL: [FaultClass; 8] = [
         FaultClass::NonFinite,
         FaultClass::Saturated,
         FaultClass::Spikes,
@@ -53,12 +58,14 @@ impl FaultClass {
         FaultClass::ContactLoss,
         FaultClass::ForceLimit,
         FaultClass::OffsetStep,
+        FaultClass::DiveForceLimit,
     ];
 
     /// The mode it is injected in.
     pub fn mode(self) -> Mode {
         match self {
             FaultClass::ContactLoss | FaultClass::ForceLimit => Mode::Sve,
+            // (DiveForceLimit, like the input classes and the offset step.)
             _ => Mode::Dive,
         }
     }
@@ -82,6 +89,15 @@ pub struct FaultOutcome {
     /// Time from the end of the fault until ĉ and k̂ are back within 5 % of their pre-fault
     /// values for good (s); `None` if they never are within the window.
     pub recovery_s: Option<f64>,
+    /// `dive-force-limit` only: the time from the contact (the indentation's start) to the
+    /// loop's retract on the force limit (its `FORCE_LIMIT` status) (s); `None` for the
+    /// other classes, or if either never happened.
+    pub retract_s: Option<f64>,
+    /// `dive-force-limit` only: the true static tip force when the loop retracted (N): the
+    /// cantilever's K·(D_free − D) from the plant's true deflection, low-passed at the loop
+    /// limit's corner (every sample, f64) — the force the limit is about, without the
+    /// detector's noise; `None` for the other classes or without a retract.
+    pub retract_force_n: Option<f64>,
     /// The fault-free run's ĉ, k̂ when the fault starts (aggregates, SI).
     // Non-finite when not computable: written null (serde_json), so the schema allows it.
     #[schemars(with = "[Option<f64>; 2]")]
@@ -99,6 +115,7 @@ pub fn fault_sample(class: Option<FaultClass>) -> Sample {
     Sample::from_fn(50, 50, 100e-9, [50e-9, 50e-9], |x, _| match class {
         Some(FaultClass::ContactLoss) if inside(x) => (-500e-9, 6e-7, 3.5e-3),
         Some(FaultClass::ForceLimit) if inside(x) => (350e-9, 6e-5, 0.35),
+        Some(FaultClass::DiveForceLimit) => (100e-9, 6e-5, 0.35),
         _ => (100e-9, 6e-7, 3.5e-3),
     })
     .expect("fault sample")
@@ -131,9 +148,13 @@ fn fault_samples(class: FaultClass) -> u64 {
     match class {
         FaultClass::NonFinite | FaultClass::Saturated => 100,
         FaultClass::Spikes | FaultClass::Dropouts | FaultClass::OffsetStep => 2500,
-        FaultClass::ContactLoss | FaultClass::ForceLimit => 0,
+        FaultClass::ContactLoss | FaultClass::ForceLimit | FaultClass::DiveForceLimit => 0,
     }
 }
+
+/// `dive-force-limit`'s force limit (N): above the soft bed's tap (~51 nN peak), below the
+/// stiff sample's (~148 nN without the limit).
+pub const DIVE_FORCE_MAX_N: f64 = 100e-9;
 
 /// One closed-loop run of a fault class's experiment, with the fault (`inject`) or without.
 struct Run {
@@ -144,6 +165,11 @@ struct Run {
     max_force_n: f64,
     flags: u32,
     force_limit_n: f64,
+    /// `dive-force-limit`: the first sample of the indentation (the contact confirmed), the
+    /// first with the loop's `FORCE_LIMIT`, and the true static force there.
+    crossed: Option<u64>,
+    retracted: Option<u64>,
+    retract_force_n: f64,
 }
 
 fn simulate(class: FaultClass, inject: bool, sample_rate_hz: f64, seed: u64) -> Run {
@@ -158,6 +184,10 @@ fn simulate(class: FaultClass, inject: bool, sample_rate_hz: f64, seed: u64) -> 
     c.sve.lines = 1;
     c.sve.y0_m = 2.5e-6;
     c.sve.line_period_s = 2.0;
+    if class == FaultClass::DiveForceLimit {
+        // The limit between the soft bed's tap (~51 nN) and the stiff sample's (~148 nN).
+        c.faults.force_max_n = DIVE_FORCE_MAX_N;
+    }
     let cfg = setup.config;
     let mut ctrl = Controller::<f32>::new(&cfg).expect("config");
     let mut plant: Plant = setup.build_plant().expect("plant");
@@ -172,7 +202,21 @@ fn simulate(class: FaultClass, inject: bool, sample_rate_hz: f64, seed: u64) -> 
         max_force_n: 0.0,
         flags: 0,
         force_limit_n: cfg.faults.force_max_n,
+        crossed: None,
+        retracted: None,
+        retract_force_n: f64::NAN,
     };
+    let dive_limit = class == FaultClass::DiveForceLimit;
+    // `dive-force-limit`: the true static tip force, K·(D_free − D) from the plant's true
+    // deflection low-passed as the loop's limit low-passes the measured one (the contact
+    // low-pass's corner, here at every sample and in f64): the force the limit is about,
+    // without the detector's noise and the tones.
+    let k_cant = cfg.cantilever.k_n_per_m;
+    let d_free = plant.true_deflection_m();
+    let lp_w = visco_core::discretize::one_pole_weight(
+        2.0 * std::f64::consts::PI * cfg.contact.lowpass_hz / fs,
+    );
+    let mut force_lp = 0.0f64;
     // When: DIVE 60 ms into the estimating part of the dwell; SVE where the tip (radius
     // 300 nm) reaches the feature (x = 1.7 µm) until it has left it (2.9 µm).
     let mut estimating_for = 0u64;
@@ -202,7 +246,32 @@ fn simulate(class: FaultClass, inject: bool, sample_rate_hz: f64, seed: u64) -> 
         if !ok {
             run.unbounded += 1;
         }
-        run.max_force_n = run.max_force_n.max(plant.elastic_force_n());
+        let force = plant.elastic_force_n();
+        run.max_force_n = run.max_force_n.max(force);
+        if dive_limit {
+            // The fault starts where the static tip force first exceeds the limit; the run
+            // ends 2 ms after the retract (the force's peak after it included).
+            force_lp += lp_w * (k_cant * (d_free - plant.true_deflection_m()) - force_lp);
+            if run.crossed.is_none() && ctrl.phase() == Phase::Indent {
+                run.crossed = Some(n);
+            }
+            if run.retracted.is_none() && out.status & status::FORCE_LIMIT != 0 {
+                run.retracted = Some(n);
+                run.retract_force_n = force_lp;
+            }
+            if run.crossed.is_some() || run.retracted.is_some() {
+                run.flags |= out.status & status::FAULTS;
+            }
+            if run.retracted.is_some_and(|r| n >= r + (2e-3 * fs) as u64) {
+                break;
+            }
+            d = (plant.step_nm(
+                out.u_m as f64 * 1e9,
+                out.x_m as f64 * 1e9,
+                out.y_m as f64 * 1e9,
+            ) * 1e-9) as f32;
+            continue;
+        }
         if out.status & status::ESTIMATING != 0 {
             estimating_for += 1;
         }
@@ -245,6 +314,27 @@ fn simulate(class: FaultClass, inject: bool, sample_rate_hz: f64, seed: u64) -> 
 /// the fault (same seed, so the same noise until the fault): recovered when ĉ and k̂ are back
 /// within 5 % of the fault-free run's at the same instant, for good.
 pub fn run_fault(class: FaultClass, sample_rate_hz: f64, seed: u64) -> FaultOutcome {
+    if class == FaultClass::DiveForceLimit {
+        // No fault-free run to compare with: the tap is aborted, nothing to recover.
+        let run = simulate(class, true, sample_rate_hz, seed);
+        let retract_s = match (run.crossed, run.retracted) {
+            (Some(c), Some(r)) if r >= c => Some((r - c) as f64 / sample_rate_hz),
+            _ => None,
+        };
+        return FaultOutcome {
+            class,
+            bounded: run.unbounded == 0,
+            unbounded_samples: run.unbounded,
+            max_force_n: run.max_force_n,
+            force_limit_n: run.force_limit_n,
+            flags: run.flags,
+            recovery_s: None,
+            retract_s,
+            retract_force_n: Some(run.retract_force_n).filter(|f| f.is_finite()),
+            before: [f64::NAN; 2],
+            after: [f64::NAN; 2],
+        };
+    }
     let clean = simulate(class, false, sample_rate_hz, seed);
     let run = simulate(class, true, sample_rate_hz, seed);
     let dt = 1.0 / sample_rate_hz;
@@ -283,6 +373,8 @@ pub fn run_fault(class: FaultClass, sample_rate_hz: f64, seed: u64) -> FaultOutc
         force_limit_n: run.force_limit_n,
         flags: run.flags,
         recovery_s,
+        retract_s: None,
+        retract_force_n: None,
         before,
         after: compared.last().map_or([f64::NAN; 2], |v| [v.1, v.2]),
     }
