@@ -368,6 +368,11 @@ impl Candidate {
         }
     }
 
+    /// The indices of its amplitudes and of its shape parameters, in order.
+    pub fn amplitudes_and_shapes(&self) -> (Vec<usize>, Vec<usize>) {
+        (0..self.params.len()).partition(|&j| !self.params[j].shape)
+    }
+
     /// The null values: the candidate at the nominal model (amplitudes zero, shapes at their
     /// first grid point).
     pub fn null_values(&self) -> Vec<f64> {

@@ -210,6 +210,20 @@ pub struct Stage {
     pub stage: u64,
     pub level: Num,
     pub candidates: Vec<Candidate>,
+    /// The candidates left untested by the screen: the stage fits in full the few whose
+    /// linearised fit is best, and the others only where a brief polish already fits better
+    /// than the worst of those.
+    #[serde(default)]
+    pub screened_out: Vec<ScreenedOut>,
+}
+
+/// A candidate the stage's linearised screen left out.
+#[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]
+pub struct ScreenedOut {
+    pub effect: String,
+    /// Its linearised fit's gain in SSR on the fit samples, as a fraction of the stage
+    /// model's SSR there (null where the linearised fit failed).
+    pub linear_ssr_gain: Num,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize, JsonSchema)]

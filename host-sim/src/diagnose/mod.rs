@@ -11,7 +11,8 @@
 //!    corrected (Holm).
 //! 3. **Name** ([`search`], [`candidates`]): each effect of the vocabulary is a model
 //!    extension with its own parameters (the plant's [`crate::plant::effects`], one definition
-//!    shared with the simulator); each is fitted and tested on the held-out half
+//!    shared with the simulator); each is screened by its linearised fit, the best few (and
+//!    any other a brief fit shows better) fitted in full and tested on the held-out half
 //!    ([`noise::held_out_test`]); the significant one with the largest held-out likelihood
 //!    joins the model, and the search repeats.
 //! 4. **Model it, show the improvement** ([`report`]): the extended model's held-out RMS

@@ -17,7 +17,7 @@ use super::locate::{hold_reading, locate, phases, spans, HoldReading, Located, P
 use super::model::{Input, Trace};
 use super::noise::HeldOut;
 use super::problem::{Problem, BLOCK};
-use super::search::{c_a_si, k_a_si, Search, SearchOptions, DETECTION_FLOOR};
+use super::search::{c_a_si, k_a_si, Search, SearchOptions, DETECTION_FLOOR, SCREEN_POLISHED};
 use crate::identify::error::{IdentifyError, Result};
 use crate::identify::figures::plain;
 use crate::identify::files::{push_num, Staged};
@@ -391,6 +391,15 @@ impl Diagnosis {
                         chosen: *chosen,
                     })
                     .collect(),
+                screened_out: s
+                    .screened_out
+                    .iter()
+                    .filter(|(st, _, _)| *st == stage)
+                    .map(|(_, kind, gain)| jr::ScreenedOut {
+                        effect: kind.as_str().into(),
+                        linear_ssr_gain: (*gain).into(),
+                    })
+                    .collect(),
             })
             .collect();
         let nn = &s.nominal_noise;
@@ -480,11 +489,14 @@ impl Diagnosis {
                 fit_samples: p.fit.iter().filter(|h| **h).count() as u64,
             },
             selection: jr::Selection {
-                method: "forward selection: each candidate fitted on the fit samples and \
-                         tested on the held-out ones (whitened likelihood ratio, one-sided \
-                         z); the significant one with the largest held-out likelihood gain \
-                         joins the model"
-                    .into(),
+                method: format!(
+                    "forward selection: each candidate screened by its linearised fit, the \
+                     {SCREEN_POLISHED} best (and adhesion beside surface attraction) fitted \
+                     on the fit samples, the others only where a brief fit already beats the \
+                     worst of those; each fitted one tested on the held-out samples \
+                     (whitened likelihood ratio, one-sided z); the significant one with the \
+                     largest held-out likelihood gain joins the model"
+                ),
                 family_alpha: self.alpha,
                 correction: "Bonferroni over the candidates of each stage".into(),
                 detection_floor: format!(

@@ -15,6 +15,16 @@
 //! 2. the best grid point, refined by golden section in each smooth shape parameter;
 //! 3. Levenberg–Marquardt over everything from there.
 //!
+//! Steps 1–2 are a screen at the first stage (where most of the time goes): step 3, most of
+//! the cost, runs in full for the [`SCREEN_POLISHED`] candidates with the smallest linearised
+//! SSR, for plastic deformation (whose screen understates it), and for adhesion beside surface
+//! attraction (which is named only against it). Every other candidate is polished from the
+//! model for [`GIVE_UP_AFTER`] iterations and goes on only if by then it fits better than the
+//! best of those that passes its test (where none passes, the worst of them): a first-order
+//! screen can understate an effect that moves an event. The ones that do not are reported as
+//! screened out, with their linearised gain; every candidate counts in the stage's Bonferroni
+//! split. The later stages polish every candidate.
+//!
 //! At the first stage each candidate is also fitted from the nominal model's other optima;
 //! such a polish gives up when it has not come near the fit from the model after a few
 //! iterations ([`GIVE_UP_AFTER`], [`GIVE_UP_MARGIN`]).
@@ -122,6 +132,33 @@ const LATTICE_OFFSETS: [[f64; 2]; 6] = [
     [0.5, 0.25],
     [0.5, 0.5],
 ];
+
+/// A shape point of a candidate's linearised fit: (SSR on the fit samples, shape values,
+/// amplitudes, corrections of the base's parameters).
+type Ranked = (f64, Vec<f64>, Vec<f64>, Vec<f64>);
+
+/// A candidate's linearised screen from one base: its grid's shape points ranked by their
+/// linearised SSR, and the best point after the golden section in each shape.
+#[derive(Clone, Debug)]
+pub struct Screen {
+    ranked: Vec<Ranked>,
+    best: Ranked,
+}
+
+/// The fit a polish must beat ([`Problem::polish_candidate`]): its SSR, and the SSR above
+/// which the polish gives up after [`GIVE_UP_AFTER`] iterations.
+#[derive(Clone, Copy, Debug)]
+pub struct Bar {
+    pub ssr: f64,
+    pub give_up: f64,
+}
+
+impl Screen {
+    /// The linearised fit's SSR on the fit samples (nm², prior rows included).
+    pub fn ssr(&self) -> f64 {
+        self.best.0
+    }
+}
 
 /// A fitted extension and its test against the model it extends.
 #[derive(Clone, Debug)]
@@ -247,6 +284,9 @@ pub struct Search {
     pub model: Model,
     /// The per-test level used at each stage.
     pub levels: Vec<f64>,
+    /// The candidates the linearised screen left unpolished at each stage (stage, kind, the
+    /// screen's SSR gain over the stage's model as a fraction of its SSR on the fit samples).
+    pub screened_out: Vec<(usize, EffectKind, f64)>,
     /// Total simulations.
     pub evaluations: usize,
 }
@@ -567,36 +607,31 @@ impl Problem {
         (m, ev)
     }
 
-    /// Fits `cand` added to `base` (see the module docs): the extended model and its SSR on
-    /// the fit samples, and the simulations spent.
-    ///
-    /// With `polish_below` (the SSR of the best fit the caller already has), a polish still
-    /// at or above it after [`GIVE_UP_AFTER`] iterations stops there, and a fit that ends at
-    /// or above it is `None`. The second result is the simulations spent either way.
-    pub fn fit_candidate(
+    /// A candidate's linearised screen from `base` (steps 1–2 of its fit): every shape point
+    /// of its grid, then a golden section in each shape, fitted linearly (the effect's
+    /// amplitudes and the base's corrections by its Jacobian `jac`) to the base's residual
+    /// `r_base`. `None` where a simulation is not finite.
+    pub fn screen_candidate(
         &self,
         base: &Model,
         env: &Env,
         cand: &Candidate,
         r_base: &[f64],
         jac: &[Vec<f64>],
-        polish_below: Option<f64>,
-    ) -> (Option<(Model, f64)>, usize) {
+    ) -> (Option<Screen>, usize) {
         let mut evals = 0;
-        let fitted =
-            self.fit_candidate_counted(base, env, cand, (r_base, jac), polish_below, &mut evals);
-        (fitted, evals)
+        let screen = self.screen_counted(base, env, cand, (r_base, jac), &mut evals);
+        (screen, evals)
     }
 
-    fn fit_candidate_counted(
+    fn screen_counted(
         &self,
         base: &Model,
         env: &Env,
         cand: &Candidate,
         (r_base, jac): (&[f64], &[Vec<f64>]),
-        polish_below: Option<f64>,
         evals: &mut usize,
-    ) -> Option<(Model, f64)> {
+    ) -> Option<Screen> {
         // An effect that acts only on the reading leaves the states alone: its grid's
         // readings replay on the base's states instead of simulating (one traced simulation).
         let mut base_trace = Trace::default();
@@ -607,12 +642,7 @@ impl Problem {
         );
         *evals += 1;
         let sim_base = self.finite_on_fit(&base_full)?;
-        let amp_idx: Vec<usize> = (0..cand.params.len())
-            .filter(|&j| !cand.params[j].shape)
-            .collect();
-        let shape_idx: Vec<usize> = (0..cand.params.len())
-            .filter(|&j| cand.params[j].shape)
-            .collect();
+        let (amp_idx, shape_idx) = cand.amplitudes_and_shapes();
         let null = cand.null_values();
         // Step 1: the grid (cartesian product of the shape grids).
         let mut grid_points: Vec<Vec<f64>> = vec![Vec::new()];
@@ -664,8 +694,6 @@ impl Problem {
             let nb = jac.len();
             Some((s, beta[nb..].to_vec(), beta[..nb].to_vec()))
         };
-        // (SSR, shape point, amplitudes, corrections of the nominal parameters)
-        type Ranked = (f64, Vec<f64>, Vec<f64>, Vec<f64>);
         let mut ranked: Vec<Ranked> = Vec::new();
         for g in &grid_points {
             if let Some((s, amps, corr)) = lin_fit(g, &mut *evals) {
@@ -704,6 +732,48 @@ impl Problem {
                 }
             });
         }
+        Some(Screen {
+            ranked,
+            best: (best_s, best_g, best_a, best_c),
+        })
+    }
+
+    /// A candidate fitted from `base` by the full model, from its linearised `screen` (step
+    /// 3): the extended model and its SSR on the fit samples, and the simulations spent.
+    ///
+    /// With `polish_below: Some(bar)` (the SSR of a fit the caller already has), a polish
+    /// still above `bar.give_up` after [`GIVE_UP_AFTER`] iterations stops there, and a fit
+    /// that ends at or above `bar.ssr` is `None`. The second result is the simulations spent
+    /// either way.
+    pub fn polish_candidate(
+        &self,
+        base: &Model,
+        env: &Env,
+        cand: &Candidate,
+        r_base: &[f64],
+        screen: &Screen,
+        polish_below: Option<Bar>,
+    ) -> (Option<(Model, f64)>, usize) {
+        let mut evals = 0;
+        let fitted = self.polish_counted(base, env, cand, r_base, screen, polish_below, &mut evals);
+        (fitted, evals)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn polish_counted(
+        &self,
+        base: &Model,
+        env: &Env,
+        cand: &Candidate,
+        r_base: &[f64],
+        screen: &Screen,
+        polish_below: Option<Bar>,
+        evals: &mut usize,
+    ) -> Option<(Model, f64)> {
+        let (amp_idx, shape_idx) = cand.amplitudes_and_shapes();
+        let null = cand.null_values();
+        let ranked = &screen.ranked;
+        let (best_s, best_g, best_a, best_c) = screen.best.clone();
         // Step 3: everything together, from there: the linearised step scaled back until
         // the full model agrees it helps (far from the nominal model — the large effects of
         // real recordings — the first-order step can overshoot), then polished. When the
@@ -767,7 +837,7 @@ impl Problem {
             }
             let opts = LmOptions {
                 max_iterations: 25,
-                give_up: polish_below.map(|bar| (GIVE_UP_AFTER, GIVE_UP_MARGIN * bar)),
+                give_up: polish_below.map(|bar| (GIVE_UP_AFTER, bar.give_up)),
                 ..LmOptions::default()
             };
             let (s_pol, ev) = self.polish_free(&mut m, env, &opts, |_| true);
@@ -777,7 +847,7 @@ impl Problem {
             }
         }
         let (mut m, mut ssr) = fitted?;
-        if polish_below.is_some_and(|bar| ssr >= bar) {
+        if polish_below.is_some_and(|bar| ssr >= bar.ssr) {
             return None;
         }
         // A shape that moves an event between samples (an adhesion's reach) is not polished
@@ -1279,6 +1349,7 @@ impl Problem {
         let mut chosen: Vec<Tested> = Vec::new();
         let mut tested = Vec::new();
         let mut levels = Vec::new();
+        let mut screened_out = Vec::new();
         for stage in 0..opts.max_effects {
             let mut env = env.clone();
             env.mode2_peaks_hz = super::mode2_peaks(self, &r_model);
@@ -1324,22 +1395,84 @@ impl Problem {
                     bases.push((alt.clone(), r_alt, j_alt));
                 }
             }
-            // Each candidate's fit is independent of the others': they run on the machine's
-            // cores (scoped threads taking the next candidate in turn), the results kept in
-            // the candidates' order so the outcome does not depend on the threads.
-            let fit_one = |cand: &Candidate| -> (Option<Tested>, usize) {
+            // Each candidate's screen and fit are independent of the others': they run on the
+            // machine's cores, the results in the candidates' order.
+            let threads = opts.threads.clamp(1, cands.len());
+            // The screen: every candidate's linearised fit from every base.
+            let screens: Vec<(Vec<Option<Screen>>, usize)> = in_parallel(
+                &cands,
+                threads,
+                |cand: &Candidate| {
+                    let mut evals = 0;
+                    let s = bases
+                        .iter()
+                        .map(|(b, r_b, j_b)| {
+                            let (s, ev) = self.screen_candidate(b, &env, cand, r_b, j_b);
+                            evals += ev;
+                            s
+                        })
+                        .collect();
+                    (s, evals)
+                },
+                |done, ci| {
+                    progress(&format!(
+                        "stage {}: candidate {}/{} screened ({})",
+                        stage + 1,
+                        done,
+                        cands.len(),
+                        cands[ci].kind
+                    ))
+                },
+            );
+            let linear: Vec<f64> = screens
+                .iter()
+                .map(|(s, _)| {
+                    s.iter()
+                        .flatten()
+                        .map(Screen::ssr)
+                        .fold(f64::INFINITY, f64::min)
+                })
+                .collect();
+            // The screen decides at the first stage only, where its order was measured (and
+            // most of the time goes: every candidate from every nominal optimum); the later
+            // stages, from one base, polish every candidate as before.
+            let polished = if stage == 0 {
+                polished_by_screen(&cands.iter().map(|c| c.kind).collect::<Vec<_>>(), &linear)
+            } else {
+                linear.iter().map(|l| l.is_finite()).collect()
+            };
+            let first: Vec<usize> = (0..cands.len()).filter(|&ci| polished[ci]).collect();
+            let outsiders: Vec<usize> = (0..cands.len())
+                .filter(|&ci| !polished[ci] && linear[ci].is_finite())
+                .collect();
+            // `outsider_bar`: the fit an outsider of the screen must beat from the model.
+            let fit_one = |ci: usize, outsider_bar: Option<f64>| -> (Option<Tested>, usize) {
+                let cand = &cands[ci];
                 let mut evals = 0;
                 let mut fitted: Option<(Model, f64, usize)> = None;
                 // The other nominal optima are polished from only while they can beat the
                 // best fit so far ([`GIVE_UP_AFTER`]).
-                for (bi, (b, r_b, j_b)) in bases.iter().enumerate() {
-                    let below = (bi > 0).then(|| fitted.as_ref().map_or(ssr(&bases[0].1), |f| f.1));
-                    let (f, ev) = self.fit_candidate(b, &env, cand, r_b, j_b, below);
+                for (bi, (b, r_b, _)) in bases.iter().enumerate() {
+                    let Some(screen) = &screens[ci].0[bi] else {
+                        continue;
+                    };
+                    let below = if bi == 0 {
+                        outsider_bar.map(|ssr| Bar { ssr, give_up: ssr })
+                    } else {
+                        let ssr = fitted.as_ref().map_or(ssr(&bases[0].1), |f| f.1);
+                        Some(Bar {
+                            ssr,
+                            give_up: GIVE_UP_MARGIN * ssr,
+                        })
+                    };
+                    let (f, ev) = self.polish_candidate(b, &env, cand, r_b, screen, below);
                     evals += ev;
                     if let Some((m, s)) = f {
                         if fitted.as_ref().is_none_or(|g| s < g.1) {
                             fitted = Some((m, s, ev));
                         }
+                    } else if bi == 0 && outsider_bar.is_some() {
+                        return (None, evals);
                     }
                 }
                 let Some((m, ssr, ev)) = fitted else {
@@ -1381,39 +1514,63 @@ impl Problem {
                 };
                 (Some(t), evals)
             };
-            let threads = opts.threads.clamp(1, cands.len());
-            let outcomes: Vec<(Option<Tested>, usize)> = {
-                let next = std::sync::atomic::AtomicUsize::new(0);
-                let (tx, rx) = std::sync::mpsc::channel::<(usize, (Option<Tested>, usize))>();
-                let mut slots: Vec<Option<(Option<Tested>, usize)>> = vec![None; cands.len()];
-                std::thread::scope(|scope| {
-                    for _ in 0..threads {
-                        let tx = tx.clone();
-                        let (next, cands, fit_one) = (&next, &cands, &fit_one);
-                        scope.spawn(move || loop {
-                            let ci = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                            let Some(cand) = cands.get(ci) else {
-                                break;
-                            };
-                            if tx.send((ci, fit_one(cand))).is_err() {
-                                break;
-                            }
-                        });
-                    }
-                    drop(tx);
-                    for (done, (ci, out)) in rx.iter().enumerate() {
+            let fit_all = |list: &[usize], bar: Option<f64>, progress: &mut dyn FnMut(&str)| {
+                in_parallel(
+                    list,
+                    threads.min(list.len().max(1)),
+                    |&ci| fit_one(ci, bar),
+                    |done, k| {
                         progress(&format!(
-                            "stage {}: candidate {}/{} fitted ({})",
+                            "stage {}: candidate {}/{} fitted ({}{})",
                             stage + 1,
-                            done + 1,
-                            cands.len(),
-                            cands[ci].kind
-                        ));
-                        slots[ci] = Some(out);
-                    }
-                });
-                slots.into_iter().flatten().collect()
+                            done,
+                            list.len(),
+                            cands[list[k]].kind,
+                            if bar.is_some() {
+                                ", outside the screen's best"
+                            } else {
+                                ""
+                            }
+                        ))
+                    },
+                )
             };
+            let mut outcomes = fit_all(&first, None, &mut progress);
+            // An outsider of the screen (whose linearised fit may understate it: a plastic
+            // set moves where the contact ends) is polished from the model briefly, and fully
+            // only if by then it fits better than the best of the screen's best that passes
+            // its test (where none passes, than the worst of them): only then could it be
+            // named.
+            let fits = |pass: bool| {
+                outcomes
+                    .iter()
+                    .filter_map(|(t, _)| t.as_ref())
+                    .filter(move |t| !pass || t.passes(level))
+                    .map(|t| t.ssr_fit)
+            };
+            let bar = fits(true)
+                .reduce(f64::min)
+                .or_else(|| fits(false).reduce(f64::max))
+                .unwrap_or_else(|| ssr(&bases[0].1));
+            let second = fit_all(&outsiders, Some(bar), &mut progress);
+            let mut kept: Vec<(usize, (Option<Tested>, usize))> =
+                first.iter().copied().zip(outcomes.drain(..)).collect();
+            let base_ssr = ssr(&bases[0].1);
+            for (&ci, out) in outsiders.iter().zip(second) {
+                if out.0.is_none() {
+                    screened_out.push((stage, cands[ci].kind, (base_ssr - linear[ci]) / base_ssr));
+                }
+                kept.push((ci, out));
+            }
+            for (ci, cand) in cands.iter().enumerate() {
+                if !linear[ci].is_finite() {
+                    screened_out.push((stage, cand.kind, f64::NAN));
+                }
+            }
+            // In the candidates' order, as before the screen (ties go to the first).
+            kept.sort_by_key(|(ci, _)| *ci);
+            let outcomes: Vec<(Option<Tested>, usize)> = kept.into_iter().map(|(_, o)| o).collect();
+            evaluations += screens.iter().map(|(_, ev)| ev).sum::<usize>();
             let mut results: Vec<Tested> = Vec::new();
             for (t, ev) in outcomes {
                 evaluations += ev;
@@ -1486,9 +1643,85 @@ impl Problem {
             tested,
             model,
             levels,
+            screened_out,
             evaluations,
         }
     }
+}
+
+/// How many of a stage's candidates are fitted by the full model, in the order of their
+/// linearised screen (the smallest linearised SSR first). On refsim's seeds 1–6 (66 recordings
+/// of the official set) the effect finally named at the first stage was the screen's best in
+/// 45 of 50, its second in 3, and its fourth and sixth once each (a miss and a false alarm);
+/// three polished in full leave a margin over that, and the rest are polished briefly (the
+/// module docs).
+pub const SCREEN_POLISHED: usize = 3;
+
+/// Which candidates the full fit polishes: the [`SCREEN_POLISHED`] best by their linearised
+/// SSR `linear` (ties in the candidates' order; a screen that failed is not polished),
+/// plastic deformation always (its screen understates it), and adhesion with surface
+/// attraction, which is named only against adhesion's fit
+/// ([`adhesion_unless_the_approach_shows`]).
+fn polished_by_screen(kinds: &[EffectKind], linear: &[f64]) -> Vec<bool> {
+    let mut order: Vec<usize> = (0..kinds.len())
+        .filter(|&i| linear[i].is_finite())
+        .collect();
+    order.sort_by(|&a, &b| linear[a].total_cmp(&linear[b]));
+    let mut polished = vec![false; kinds.len()];
+    for &i in order.iter().take(SCREEN_POLISHED) {
+        polished[i] = true;
+    }
+    let index = |k: EffectKind| kinds.iter().position(|&c| c == k);
+    // A plastic set moves where the contact ends on unloading, an event a first-order screen
+    // does not see: refsim's plastic deformation s16 screened 5th at a linear gain of 0.16 %
+    // and polished to 8 %, the stage's best; on JPK's spot3 cell curve it was left out.
+    if let Some(pd) = index(EffectKind::PlasticDeformation) {
+        polished[pd] |= linear[pd].is_finite();
+    }
+    if let (Some(sa), Some(ad)) = (
+        index(EffectKind::SurfaceAttraction),
+        index(EffectKind::Adhesion),
+    ) {
+        if polished[sa] && linear[ad].is_finite() {
+            polished[ad] = true;
+        }
+    }
+    polished
+}
+
+/// `f` of every item on `threads` scoped threads, each taking the next item in turn, the
+/// results in the items' order (the outcome does not depend on the threads); `done(n, i)` is
+/// told on the calling thread that item `i` finished, the `n`-th to.
+fn in_parallel<T: Sync, R: Send>(
+    items: &[T],
+    threads: usize,
+    f: impl Fn(&T) -> R + Sync,
+    mut done: impl FnMut(usize, usize),
+) -> Vec<R> {
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let (tx, rx) = std::sync::mpsc::channel::<(usize, R)>();
+    let mut slots: Vec<Option<R>> = (0..items.len()).map(|_| None).collect();
+    std::thread::scope(|scope| {
+        for _ in 0..threads.max(1) {
+            let tx = tx.clone();
+            let (next, f) = (&next, &f);
+            scope.spawn(move || loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(item) = items.get(i) else {
+                    break;
+                };
+                if tx.send((i, f(item))).is_err() {
+                    break;
+                }
+            });
+        }
+        drop(tx);
+        for (n, (i, out)) in rx.iter().enumerate() {
+            done(n + 1, i);
+            slots[i] = Some(out);
+        }
+    });
+    slots.into_iter().flatten().collect()
 }
 
 /// Golden-section search of `f` between `lo` and `hi` (in ln when both are positive: the
@@ -1570,11 +1803,63 @@ pub fn seconds(t_us: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
-    use super::{contact_misfit, misfit_ratio};
+    use super::{contact_misfit, in_parallel, misfit_ratio, polished_by_screen};
+    use crate::plant::effects::EffectKind;
     use crate::plant::rng::NormalRng;
 
     /// White noise reads one; a slow misfit of amplitude A on noise σ reads
     /// √(σ² + A²/2)/σ, because the first difference hardly sees it.
+    #[test]
+    fn the_screen_polishes_its_best_three_and_adhesion_beside_surface_attraction() {
+        use EffectKind::*;
+        let kinds = [
+            NonlinearStiffness,
+            Adhesion,
+            SurfaceAttraction,
+            HydrodynamicDrag,
+            BaselineTilt,
+            PlasticDeformation,
+        ];
+        // Smallest linearised SSR first; a failed screen (NaN, infinite) is never polished.
+        let linear = [5.0, 9.0, 2.0, 1.0, f64::NAN, 3.0];
+        let polished = polished_by_screen(&kinds, &linear);
+        assert_eq!(polished, [false, true, true, true, false, true]);
+        // Without surface attraction among the best, adhesion waits its turn.
+        let linear = [5.0, 9.0, 8.0, 1.0, f64::INFINITY, 3.0];
+        assert_eq!(
+            polished_by_screen(&kinds, &linear),
+            [true, false, false, true, false, true]
+        );
+        // Ties go to the candidates' order; plastic deformation is polished whatever its rank.
+        let linear = [1.0; 6];
+        assert_eq!(
+            polished_by_screen(&kinds, &linear),
+            [true, true, true, false, false, true]
+        );
+        // ... unless its screen failed.
+        let linear = [1.0, 1.0, 1.0, 1.0, 1.0, f64::NAN];
+        assert_eq!(
+            polished_by_screen(&kinds, &linear),
+            [true, true, true, false, false, false]
+        );
+    }
+
+    #[test]
+    fn in_parallel_keeps_the_items_order_whatever_the_threads() {
+        let items: Vec<u64> = (0..37).collect();
+        for threads in [1, 2, 5, 64] {
+            let mut done = Vec::new();
+            let out = in_parallel(&items, threads, |&x| x * x, |n, i| done.push((n, i)));
+            assert_eq!(out, items.iter().map(|x| x * x).collect::<Vec<_>>());
+            // Every item reported once, counted 1..=n.
+            assert_eq!(done.len(), items.len());
+            assert!(done.iter().enumerate().all(|(k, &(n, _))| n == k + 1));
+            let mut seen: Vec<usize> = done.iter().map(|&(_, i)| i).collect();
+            seen.sort_unstable();
+            assert_eq!(seen, (0..items.len()).collect::<Vec<_>>());
+        }
+    }
+
     #[test]
     fn misfit_ratio_reads_white_noise_as_one_and_slow_misfit_above() {
         let mut rng = NormalRng::new(5);
