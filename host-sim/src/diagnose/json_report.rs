@@ -210,9 +210,10 @@ pub struct Stage {
     pub stage: u64,
     pub level: Num,
     pub candidates: Vec<Candidate>,
-    /// The candidates left untested by the screen: the stage fits in full the few whose
-    /// linearised fit is best, and the others only where a brief polish already fits better
-    /// than the worst of those.
+    /// The candidates left untested by the screen (first stage only): the stage fits in full
+    /// the few whose linearised fit is best, and the others only where a brief polish
+    /// already fits better than the best of those that passes its test (where none passes,
+    /// the worst of them).
     #[serde(default)]
     pub screened_out: Vec<ScreenedOut>,
 }
