@@ -610,21 +610,9 @@ impl Problem {
     /// A candidate's linearised screen from `base` (steps 1–2 of its fit): every shape point
     /// of its grid, then a golden section in each shape, fitted linearly (the effect's
     /// amplitudes and the base's corrections by its Jacobian `jac`) to the base's residual
-    /// `r_base`. `None` where a simulation is not finite.
+    /// `r_base`. `None` where a simulation is not finite; the simulations spent are added to
+    /// `evals` either way.
     pub fn screen_candidate(
-        &self,
-        base: &Model,
-        env: &Env,
-        cand: &Candidate,
-        r_base: &[f64],
-        jac: &[Vec<f64>],
-    ) -> (Option<Screen>, usize) {
-        let mut evals = 0;
-        let screen = self.screen_counted(base, env, cand, (r_base, jac), &mut evals);
-        (screen, evals)
-    }
-
-    fn screen_counted(
         &self,
         base: &Model,
         env: &Env,
@@ -739,28 +727,14 @@ impl Problem {
     }
 
     /// A candidate fitted from `base` by the full model, from its linearised `screen` (step
-    /// 3): the extended model and its SSR on the fit samples, and the simulations spent.
+    /// 3): the extended model and its SSR on the fit samples.
     ///
     /// With `polish_below: Some(bar)` (the SSR of a fit the caller already has), a polish
     /// still above `bar.give_up` after [`GIVE_UP_AFTER`] iterations stops there, and a fit
-    /// that ends at or above `bar.ssr` is `None`. The second result is the simulations spent
+    /// that ends at or above `bar.ssr` is `None`. The simulations spent are added to `evals`
     /// either way.
-    pub fn polish_candidate(
-        &self,
-        base: &Model,
-        env: &Env,
-        cand: &Candidate,
-        r_base: &[f64],
-        screen: &Screen,
-        polish_below: Option<Bar>,
-    ) -> (Option<(Model, f64)>, usize) {
-        let mut evals = 0;
-        let fitted = self.polish_counted(base, env, cand, r_base, screen, polish_below, &mut evals);
-        (fitted, evals)
-    }
-
     #[allow(clippy::too_many_arguments)]
-    fn polish_counted(
+    pub fn polish_candidate(
         &self,
         base: &Model,
         env: &Env,
@@ -1407,9 +1381,7 @@ impl Problem {
                     let s = bases
                         .iter()
                         .map(|(b, r_b, j_b)| {
-                            let (s, ev) = self.screen_candidate(b, &env, cand, r_b, j_b);
-                            evals += ev;
-                            s
+                            self.screen_candidate(b, &env, cand, (r_b, j_b), &mut evals)
                         })
                         .collect();
                     (s, evals)
@@ -1465,7 +1437,8 @@ impl Problem {
                             give_up: GIVE_UP_MARGIN * ssr,
                         })
                     };
-                    let (f, ev) = self.polish_candidate(b, &env, cand, r_b, screen, below);
+                    let mut ev = 0;
+                    let f = self.polish_candidate(b, &env, cand, r_b, screen, below, &mut ev);
                     evals += ev;
                     if let Some((m, s)) = f {
                         if fitted.as_ref().is_none_or(|g| s < g.1) {

@@ -16,7 +16,7 @@
 //! inclusion rising under the scanning tip); and a misleading input for the estimator (a step of
 //! the detector's offset, which no Kelvin–Voigt contact explains).
 
-use super::Setup;
+use super::{plant_reading, Setup};
 use crate::plant::Plant;
 use crate::sample::Sample;
 use schemars::JsonSchema;
@@ -265,11 +265,7 @@ fn simulate(class: FaultClass, inject: bool, sample_rate_hz: f64, seed: u64) -> 
             if run.retracted.is_some_and(|r| n >= r + (2e-3 * fs) as u64) {
                 break;
             }
-            d = (plant.step_nm(
-                out.u_m as f64 * 1e9,
-                out.x_m as f64 * 1e9,
-                out.y_m as f64 * 1e9,
-            ) * 1e-9) as f32;
+            d = plant_reading(&mut plant, &out);
             continue;
         }
         if out.status & status::ESTIMATING != 0 {
@@ -301,11 +297,7 @@ fn simulate(class: FaultClass, inject: bool, sample_rate_hz: f64, seed: u64) -> 
             run.flags |= out.status & status::FAULTS;
             run.history.push((n, ce as f64, ke as f64));
         }
-        d = (plant.step_nm(
-            out.u_m as f64 * 1e9,
-            out.x_m as f64 * 1e9,
-            out.y_m as f64 * 1e9,
-        ) * 1e-9) as f32;
+        d = plant_reading(&mut plant, &out);
     }
     run
 }

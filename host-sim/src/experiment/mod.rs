@@ -363,12 +363,7 @@ pub fn run(
         if ctrl.phase() == Phase::Done {
             break;
         }
-        // nm without round trips through metres: the plant's `step_nm`.
-        d = (plant.step_nm(
-            out.u_m as f64 * 1e9,
-            out.x_m as f64 * 1e9,
-            out.y_m as f64 * 1e9,
-        ) * 1e-9) as f32;
+        d = plant_reading(plant, &out);
         if steps % report_every == 0 {
             progress(steps as f64 / fs);
         }
@@ -805,4 +800,14 @@ pub fn run_sve(
         ny,
         simulated_s,
     })
+}
+
+/// The plant's next reading (m) for the loop's output: the plant driven in nm, without round
+/// trips through metres (its `step_nm`).
+pub(crate) fn plant_reading(plant: &mut Plant, out: &visco_core::StepOut<f32>) -> f32 {
+    (plant.step_nm(
+        out.u_m as f64 * 1e9,
+        out.x_m as f64 * 1e9,
+        out.y_m as f64 * 1e9,
+    ) * 1e-9) as f32
 }
