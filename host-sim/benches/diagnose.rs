@@ -3,8 +3,8 @@
 //! the machine's cores, with where the time goes: one simulation of the recording, the
 //! nominal fit, each selection stage, the locate and report steps, and the simulations spent.
 //!
-//! `cargo bench -p visco --bench diagnose` (`-- --quick`: a 10 000-sample tap). Timings on a
-//! shared machine are noisy: read them as ratios.
+//! `cargo bench -p visco --bench diagnose` (`-- --quick`: a 10 000-sample tap; `-- --sim`:
+//! only the simulation, 40 times). Timings on a shared machine are noisy: read them as ratios.
 
 #[path = "../tests/diagnose_support/mod.rs"]
 mod diagnose_support;
@@ -37,13 +37,17 @@ fn main() {
     let init = prob.initial_nominals();
     let model = Model::nominal(init[0].clone());
     let env = visco::diagnose::environment(&prob, &model, None);
-    let reps = 5;
+    let sim_only = std::env::args().any(|a| a == "--sim");
+    let reps = if sim_only { 40 } else { 5 };
     let t = Instant::now();
     for _ in 0..reps {
         std::hint::black_box(prob.simulate(&model, &env, None));
     }
     let sim_s = t.elapsed().as_secs_f64() / reps as f64;
     println!("one simulation of the recording: {:.2} ms", sim_s * 1e3);
+    if sim_only {
+        return;
+    }
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     for threads in [1, cores] {
         let opts = SearchOptions {

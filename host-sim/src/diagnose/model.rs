@@ -230,6 +230,20 @@ impl BedGeometry {
             usize::from(d > 0.0)
         }
     }
+    /// Whether `n` elements are engaged at apex depth δ: [`Self::engaged`]`(δ) == n` bit for
+    /// bit without its search, from the two sags that bound the count (the lattice's event
+    /// search asks it of one count ~40 times per event).
+    #[inline]
+    pub fn engages(&self, d: f64, n: usize) -> bool {
+        if self.lattice {
+            let below = n
+                .checked_sub(1)
+                .is_none_or(|i| self.sags.get(i).is_some_and(|&s| s < d));
+            below && self.sags.get(n).is_none_or(|&s| !(s < d))
+        } else {
+            usize::from(d > 0.0) == n
+        }
+    }
     /// (V(δ), A(δ), elements engaged) with one search of the lattice: [`Self::volume`],
     /// [`Self::area`] and [`Self::engaged`] bit for bit, for the per-sample force (three
     /// binary searches per call were a tenth of a simulation).
@@ -248,6 +262,18 @@ impl BedGeometry {
                 contact_area(self.r, d),
                 usize::from(d > 0.0),
             )
+        }
+    }
+    /// (V(δ), A(δ)) on a lattice where `n` = [`Self::engaged`]`(δ)` is known: [`Self::at`]'s
+    /// bit for bit without its search.
+    #[inline]
+    pub fn at_count(&self, d: f64, n: usize) -> (f64, f64) {
+        debug_assert!(self.engages(d, n));
+        if self.lattice {
+            let below = self.prefix.get(n).copied().unwrap_or(f64::NAN);
+            (self.cell * (n as f64 * d - below), self.cell * n as f64)
+        } else {
+            (cap_volume(self.r, d), contact_area(self.r, d))
         }
     }
     /// V(δ) (nm³).
@@ -725,7 +751,10 @@ impl InputPoly {
         let p = c0 + s0 * (c1 + s0 * (c2 + s0 * c3));
         let d1 = c1 + s0 * (2.0 * c2 + 3.0 * s0 * c3);
         let d2 = c2 + 3.0 * s0 * c3;
-        [p, d1 / dt, d2 / (dt * dt), c3 / (dt * dt * dt)]
+        // One division: the three of d1/Δt, d2/Δt², c3/Δt³ were a fair share of a piece.
+        let r = dt.recip();
+        let r2 = r * r;
+        [p, d1 * r, d2 * r2, c3 * (r2 * r)]
     }
 }
 
@@ -736,34 +765,67 @@ impl InputPoly {
 /// interval's propagator of the count before and after it. Exact keys, so the result is the uncached one.
 #[derive(Default)]
 struct PropagatorCache {
-    entries: [(f64, f64, f64, Propagator, u64); PROPAGATOR_CACHE],
+    entries: [CacheEntry; PROPAGATOR_CACHE],
     clock: u64,
+    /// The entry of the last hit, tried first: consecutive samples mostly share a key.
+    last: usize,
+    /// M and 1/M of the last miss (one simulation has one M).
+    mass: (f64, f64),
+}
+
+/// One key (c, k, τ) of [`PropagatorCache`], its propagator, 1/k (the particular solution's
+/// four divisions by k made products) and when it was last used.
+#[derive(Clone, Copy, Default)]
+struct CacheEntry {
+    c: f64,
+    k: f64,
+    tau: f64,
+    prop: Propagator,
+    inv_k: f64,
+    used: u64,
 }
 
 /// Entries of [`PropagatorCache`]: the counts a tap's depth visits within a few samples.
 const PROPAGATOR_CACHE: usize = 8;
 
 impl PropagatorCache {
+    /// The propagator of (c, k, τ) at mass `m` and 1/k.
     #[inline]
-    fn get(&mut self, m: f64, c: f64, k: f64, tau: f64) -> Propagator {
+    fn get(&mut self, m: f64, c: f64, k: f64, tau: f64) -> (Propagator, f64) {
         self.clock += 1;
         // τ = 0 marks an empty entry (a piece of zero length is recomputed, as before).
-        let hit = self
-            .entries
-            .iter()
-            .position(|e| e.2 != 0.0 && (e.0, e.1, e.2) == (c, k, tau));
-        let i = match hit {
-            Some(i) => i,
-            None => {
-                let i = (0..PROPAGATOR_CACHE)
-                    .min_by_key(|&i| self.entries[i].4)
-                    .unwrap_or(0);
-                self.entries[i] = (c, k, tau, Propagator::new(m, c, k, tau), 0);
-                i
+        let is = |e: &CacheEntry| e.tau != 0.0 && (e.c, e.k, e.tau) == (c, k, tau);
+        let i = if is(&self.entries[self.last]) {
+            self.last
+        } else {
+            match self.entries.iter().position(is) {
+                Some(i) => i,
+                None => {
+                    let i = (0..PROPAGATOR_CACHE)
+                        .min_by_key(|&i| self.entries[i].used)
+                        .unwrap_or(0);
+                    self.entries[i] = CacheEntry {
+                        c,
+                        k,
+                        tau,
+                        prop: {
+                            if self.mass.0 != m {
+                                self.mass = (m, m.recip());
+                            }
+                            let im = self.mass.1;
+                            Propagator::from_rates(k * im, -0.5 * c * im, tau)
+                        },
+                        inv_k: k.recip(),
+                        used: 0,
+                    };
+                    i
+                }
             }
         };
-        self.entries[i].4 = self.clock;
-        self.entries[i].3
+        self.last = i;
+        let e = &mut self.entries[i];
+        e.used = self.clock;
+        (e.prop, e.inv_k)
     }
 }
 
@@ -786,7 +848,7 @@ impl Dyn<'_> {
             return self.interval_lattice(z, v, poly, f_eff, dt, cache);
         }
         // Trial step; cut into sub-steps where the contact stiffness changes fast.
-        let (z1, v1) = self.piece(z, v, poly, 0.0, 1.0, f_eff, dt, cache);
+        let (z1, v1) = self.piece(z, v, poly, 0.0, 1.0, f_eff, dt, None, cache);
         let d0 = self.ct.h - z;
         let d1 = self.ct.h - z1;
         if !(d0 > 0.0 || d1 > 0.0) || self.ct.k_a <= 0.0 {
@@ -806,7 +868,7 @@ impl Dyn<'_> {
         let (mut zz, mut vv) = (z, v);
         for j in 0..n {
             let (s0, s1) = (j as f64 / n as f64, (j + 1) as f64 / n as f64);
-            (zz, vv) = self.piece(zz, vv, poly, s0, s1, f_eff, dt, cache);
+            (zz, vv) = self.piece(zz, vv, poly, s0, s1, f_eff, dt, None, cache);
         }
         (zz, vv)
     }
@@ -830,11 +892,12 @@ impl Dyn<'_> {
         let h = self.ct.h;
         let (mut zz, mut vv, mut s) = (z, v, 0.0);
         for _ in 0..LATTICE_EVENTS_MAX {
-            let (z1, v1) = self.piece(zz, vv, poly, s, 1.0, f_eff, dt, cache);
+            // The count at the piece's start: its force's and the event search's.
+            let n0 = self.geo.engaged(h - zz);
+            let (z1, v1) = self.piece(zz, vv, poly, s, 1.0, f_eff, dt, Some(n0), cache);
             if self.ct.k_a <= 0.0 && self.ct.c_a <= 0.0 {
                 return (z1, v1);
             }
-            let n0 = self.geo.engaged(h - zz);
             let tau = (1.0 - s) * dt;
             // The Hermite path stays within the ends' range widened by 4/27·τ·(|Ż₀| + |Ż₁|)
             // (its value weights h₀₀ + h₀₁ = 1 are in [0, 1], its slope weights at most 4/27
@@ -844,14 +907,14 @@ impl Dyn<'_> {
             let swing = 4.0 / 27.0 * tau * (vv.abs() + v1.abs());
             let margin = 1e-12 * (zz.abs() + z1.abs() + swing) + 1e-300;
             let (z_lo, z_hi) = (zz.min(z1) - swing - margin, zz.max(z1) + swing + margin);
-            if self.geo.engaged(h - z_hi) == n0 && self.geo.engaged(h - z_lo) == n0 {
+            if self.geo.engages(h - z_hi, n0) && self.geo.engages(h - z_lo, n0) {
                 return (z1, v1);
             }
             let mut hit = None;
             for j in 1..=8 {
                 let q = j as f64 / 8.0;
                 let zq = hermite(zz, vv, z1, v1, tau, q);
-                if self.geo.engaged(h - zq) != n0 {
+                if !self.geo.engages(h - zq, n0) {
                     hit = Some(q);
                     break;
                 }
@@ -866,7 +929,7 @@ impl Dyn<'_> {
             let (mut lo, mut hi) = (q - 0.125, q);
             for _ in 0..40 {
                 let mid = 0.5 * (lo + hi);
-                if self.geo.engaged(h - hermite(zz, vv, z1, v1, tau, mid)) == n0 {
+                if self.geo.engages(h - hermite(zz, vv, z1, v1, tau, mid), n0) {
                     lo = mid;
                 } else {
                     hi = mid;
@@ -876,18 +939,19 @@ impl Dyn<'_> {
                 }
             }
             let s_new = s + (1.0 - s) * hi;
-            (zz, vv) = self.piece(zz, vv, poly, s, s_new, f_eff, dt, cache);
+            (zz, vv) = self.piece(zz, vv, poly, s, s_new, f_eff, dt, Some(n0), cache);
             s = s_new;
             if s >= 1.0 - 1e-12 {
                 return (zz, vv);
             }
         }
-        self.piece(zz, vv, poly, s, 1.0, f_eff, dt, cache)
+        self.piece(zz, vv, poly, s, 1.0, f_eff, dt, None, cache)
     }
 
     /// Exact solution over the fraction `[s0, s1]` of the interval with the contact linearised
     /// at its start and the base a cubic in time: a polynomial particular solution, the
-    /// homogeneous deviation propagated exactly.
+    /// homogeneous deviation propagated exactly. `engaged`: the lattice's count at the start
+    /// where the caller has it (its search saved).
     #[allow(clippy::too_many_arguments)]
     #[inline]
     fn piece(
@@ -899,12 +963,19 @@ impl Dyn<'_> {
         s1: f64,
         f_eff: f64,
         dt: f64,
+        engaged: Option<usize>,
         cache: &mut PropagatorCache,
     ) -> (f64, f64) {
         let tau = (s1 - s0) * dt;
         let d = self.ct.h - z;
         let (kt, ct, f_hold) = if d > 0.0 {
-            let (vol, a, _) = self.geo.at(d);
+            let (vol, a) = match engaged {
+                Some(n) => self.geo.at_count(d, n),
+                None => {
+                    let (vol, a, _) = self.geo.at(d);
+                    (vol, a)
+                }
+            };
             let kt = self.ct.k_a * a;
             let cc = self.ct.c_a * a;
             // F ≈ f_hold − kt·Z − cc·Ż around the start (exact on a lattice until the next
@@ -923,13 +994,13 @@ impl Dyn<'_> {
         let a2 = kb * b2 + 3.0 * cb * b3;
         let a3 = kb * b3;
         // Particular solution p0 + p1·τ + p2·τ² + p3·τ³ of M·z̈ + c·ż + k·z = a(τ).
-        let p3 = a3 / k;
-        let p2 = (a2 - 3.0 * c * p3) / k;
-        let p1 = (a1 - 2.0 * c * p2 - 6.0 * m * p3) / k;
-        let p0 = (a0 - c * p1 - 2.0 * m * p2) / k;
         // Cached: in free flight, and on a lattice between engagements, every interval has
         // the same one.
-        let prop = cache.get(m, c, k, tau);
+        let (prop, ik) = cache.get(m, c, k, tau);
+        let p3 = a3 * ik;
+        let p2 = (a2 - 3.0 * c * p3) * ik;
+        let p1 = (a1 - 2.0 * c * p2 - 6.0 * m * p3) * ik;
+        let p0 = (a0 - c * p1 - 2.0 * m * p2) * ik;
         let (e1, ed1) = prop.apply(z - p0, v - p1, 0.0);
         let zp = p0 + tau * (p1 + tau * (p2 + tau * p3));
         let vp = p1 + tau * (2.0 * p2 + 3.0 * tau * p3);
@@ -1096,6 +1167,47 @@ mod tests {
         }
     }
 
+    /// `engages(δ, n)` is `engaged(δ) == n` for every count, and `at_count` is `at` bit for
+    /// bit, at depths on, between and beyond the sags (ties included), on lattices and the
+    /// continuum.
+    #[test]
+    fn engages_is_the_engaged_count_compared() {
+        let beds = [
+            Bed::Continuum,
+            Bed::Lattice {
+                pitch_nm: 100.0,
+                offset: [0.0, 0.0],
+            },
+            Bed::Lattice {
+                pitch_nm: 15.0,
+                offset: [0.37, 0.61],
+            },
+        ];
+        for bed in beds {
+            let geo = BedGeometry::new(bed, 300.0);
+            let mut depths: Vec<f64> = vec![-1.0, 0.0, 1e-300, 1e9, f64::NAN];
+            for &s in &geo.sags {
+                depths.extend([s, s.next_down(), s.next_up(), s + 0.5]);
+            }
+            let top = geo.sags.len() + 2;
+            for &d in &depths {
+                let (vol, a, n) = geo.at(d);
+                let (vol_n, a_n) = geo.at_count(d, n);
+                assert_eq!(
+                    (vol_n.to_bits(), a_n.to_bits()),
+                    (vol.to_bits(), a.to_bits())
+                );
+                for n in 0..top {
+                    assert_eq!(
+                        geo.engages(d, n),
+                        geo.engaged(d) == n,
+                        "{bed:?} d {d} n {n}"
+                    );
+                }
+            }
+        }
+    }
+
     /// On a lattice the tip at rest on k elements pressed δ deep balances K·(U − Z) against
     /// k_el·Σ(δ − s_i): the static equilibrium found by bisection meets it to 10⁻⁹ nN.
     #[test]
@@ -1131,11 +1243,22 @@ mod tests {
         );
     }
 
-    /// The propagator cache returns `Propagator::new` bit for bit, through hits, misses and
-    /// evictions (more keys than entries, revisited out of order), and τ = 0 is never a hit.
+    /// The propagator cache returns the uncached propagator from 1/M bit for bit, through
+    /// hits, misses and evictions (more keys than entries, revisited out of order), and
+    /// `Propagator::new` to rounding; τ = 0 is never a hit.
     #[test]
     fn the_propagator_cache_returns_the_uncached_propagator() {
         let m = 11.8;
+        let im = 1.0 / m;
+        let uncached = |c: f64, k: f64, tau: f64| {
+            let p = Propagator::from_rates(k * im, -0.5 * c * im, tau);
+            // Against the divisions of `new`: a few roundings apart.
+            let q = Propagator::new(m, c, k, tau);
+            for (a, b) in p.phi.iter().flatten().zip(q.phi.iter().flatten()) {
+                assert!((a - b).abs() <= 1e-14 * (1.0 + b.abs()), "{a} vs {b}");
+            }
+            (p, k.recip())
+        };
         let mut cache = PropagatorCache::default();
         let keys: Vec<(f64, f64, f64)> = (0..PROPAGATOR_CACHE + 5)
             .map(|i| {
@@ -1151,20 +1274,13 @@ mod tests {
         ];
         for &i in &order {
             let (c, k, tau) = keys[i];
-            assert_eq!(
-                cache.get(m, c, k, tau),
-                Propagator::new(m, c, k, tau),
-                "key {i}"
-            );
+            assert_eq!(cache.get(m, c, k, tau), uncached(c, k, tau), "key {i}");
         }
         let zero = cache.get(m, 0.5, 0.2, 0.0);
-        assert_eq!(zero, Propagator::new(m, 0.5, 0.2, 0.0));
+        assert_eq!(zero, uncached(0.5, 0.2, 0.0));
         // An entry never filled is all zeros with τ = 0: a zero key must not read it.
         let mut fresh = PropagatorCache::default();
-        assert_eq!(
-            fresh.get(m, 0.0, 0.0, 0.0),
-            Propagator::new(m, 0.0, 0.0, 0.0)
-        );
+        assert_eq!(fresh.get(m, 0.0, 1e-3, 0.0), uncached(0.0, 1e-3, 0.0));
     }
 
     /// The lattice's event search is skipped only where it could find nothing: wherever the

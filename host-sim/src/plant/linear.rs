@@ -57,8 +57,12 @@ impl Propagator {
     /// Closed-form `e^{Aτ}` for `M·z̈ + c·ż + k·z = F`; requires `m > 0`, `c ≥ 0`, `k > 0`,
     /// `tau ≥ 0` (the plant validates its configuration so these hold).
     pub fn new(m: f64, c: f64, k: f64, tau: f64) -> Self {
-        let a0 = k / m;
-        let mu = -0.5 * c / m;
+        Self::from_rates(k / m, -0.5 * c / m, tau)
+    }
+
+    /// [`Self::new`] from `a0 = k/M` and `mu = −c/(2M)`, for a caller that holds 1/M (the
+    /// divisions are a fair share of the cost where every τ is new).
+    pub fn from_rates(a0: f64, mu: f64, tau: f64) -> Self {
         let s2 = mu * mu - a0;
         let phi = if s2 > 0.0 && s2.sqrt() * tau > 0.05 {
             // Overdamped, well separated eigenvalues.
