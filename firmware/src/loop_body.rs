@@ -106,7 +106,9 @@ pub const BUFFER_SLOTS: usize = 8;
 /// The most samples one block hands over: the largest block (`estimator.decimation` ≤ 64).
 /// A block's samples after a restart and those before it to discard are one window of the
 /// sample clock, so they fit too.
-pub const BLOCK_MAX: usize = 64;
+/// The core's: the host stages as many (`visco_core::schedule::Staged`), so that a block
+/// that does not fit is lost alike on both.
+pub const BLOCK_MAX: usize = visco_core::schedule::BLOCK_MAX;
 
 /// Chunks of tones in circulation ([`ToneChunk`], issue 14, round 7): the one the loop reads
 /// and those the task computed ahead (one or two per block, two blocks ahead at most) or

@@ -113,7 +113,9 @@ pub struct EstimatorConfig {
     /// skipped; β, R₀ and P₀ keep their meaning, Γ acts per block (`N·T·γ/α ≤ 1`).
     pub decimation: u32,
     /// With blocks (N > 1): of a block's samples, every `stride`-th (by its place in the block,
-    /// from the first) goes into the block's information sums, with `stride` times the weight;
+    /// from the first; DIVE at a stride of 4 from the fourth, where its grouped prefilters
+    /// are read: `schedule::GROUP`) goes into the block's information sums, with `stride`
+    /// times the weight;
     /// the prefilters and the SVE high-passes still take every sample. 1, 2, 4 or 8; a block
     /// shorter than the stride uses the largest of these within it ([`Self::stride_in_blocks`];
     /// issue 14, round 7: adjacent prefiltered samples are strongly correlated).

@@ -36,10 +36,10 @@ use crate::excitation::{Excitation, ExcitationParams, SineTable, Tone};
 use crate::geometry::mean_sag;
 use crate::guard::{FaultBits, Guard, GuardParams};
 use crate::prefilter::HighPass;
-use crate::regressor::RegressorParams;
+use crate::regressor::{GroupParams, RegressorParams};
 use crate::schedule::{
-    Block, BlockResult, BlockSums, EstimatorTask, Sample, SampleSink, Target, TaskParams,
-    ToneAhead, SAMPLE_EST, SAMPLE_HP, SAMPLE_HP_REST, TONES_DIVE, TONES_SVE,
+    Block, BlockResult, EstimatorTask, Sample, SampleSink, Staged, Target, TaskParams, ToneAhead,
+    SAMPLE_EST, SAMPLE_HP, SAMPLE_HP_REST, TONES_DIVE, TONES_SVE,
 };
 use crate::units;
 use core::num::{NonZeroU32, NonZeroU64};
@@ -704,9 +704,9 @@ pub struct Controller<T> {
     /// The estimators (per sample with blocks of 1; else the host's in-line estimator task,
     /// and on the firmware only a copy that gives the restarts' projected θ̂₀).
     task: EstimatorTask<T>,
-    /// The host's in-line task's sums of the block being accumulated ([`Self::step_internal`];
-    /// the firmware's estimator task forms them from the queued samples instead).
-    host_sums: BlockSums<T>,
+    /// The host's in-line task's samples of the block being accumulated
+    /// ([`Self::step_internal`]; on the firmware they go to the estimator task's buffers).
+    host_stage: Staged<T>,
     cfg: Config,
 }
 
@@ -973,6 +973,7 @@ impl<T: SineTable> Controller<T> {
                 exc_dive: p.dive.exc,
                 exc_sve: p.sve.exc,
             },
+            GroupParams::new(cfg.prefilter.lambda_s / units::TIME, period_us),
             p.dive.theta0,
             u,
         );
@@ -987,7 +988,7 @@ impl<T: SineTable> Controller<T> {
             carry: 0,
             closed_steps: 0,
             skip_n: 0,
-            host_sums: BlockSums::default(),
+            host_stage: Staged::default(),
             target: Target::Dive3,
             pending_restart: None,
             pending_watch: false,
@@ -1364,25 +1365,14 @@ impl<T: SineTable> Controller<T> {
                 self.deliver(&r);
             }
             if let Some(b) = self.closing_block() {
-                // The sums of the block's samples, added as they came (`BlockSums::add`, the
-                // task's additions in the task's order).
-                self.inflight = Some(self.task.run_sums(&b, &self.host_sums));
-                self.host_sums.clear();
+                // The block's staged samples through the firmware's pass.
+                self.inflight = Some(self.host_stage.run(&mut self.task, b));
             }
         }
         let mut handed: Option<Sample<T>> = None;
         let out = self.step_loop(d_nm, &mut |x| handed = Some(x));
-        // The step hands its sample over after any restart in it, so it is the block's.
         if let Some(x) = handed {
-            // Its place among the block's samples (from the block's start or its restart).
-            let j = self.host_sums.seen;
-            self.host_sums.seen = j.wrapping_add(1);
-            if let Some((w, phi)) = self.task.feed(&x) {
-                if j & self.task.stride_mask(self.target) == 0 {
-                    let acc = self.task.acc(self.target);
-                    self.host_sums.add(self.target, acc, w, &phi);
-                }
-            }
+            self.host_stage.push(x);
         }
         out
     }
@@ -1581,8 +1571,8 @@ impl<T: SineTable> Controller<T> {
         self.theta2 = self.task.estimator2().theta();
         self.theta3 = self.task.estimator3().theta();
         self.target = target;
-        // The block's samples so far are discarded: the task skips them, the host's sums
-        // start again.
+        // The block's samples so far are discarded: the task skips them (the host's staged
+        // ones too, by the header).
         // This step's sample, handed over after the restart, is the block's own (`tick`:
         // this step's clock, set by `block_due`).
         // With blocks of one nothing is handed over: only the carried samples.
@@ -1595,7 +1585,6 @@ impl<T: SineTable> Controller<T> {
         self.block_from = self.tick;
         self.unfed = 0;
         self.carry = 0;
-        self.host_sums.clear();
         self.pending_restart = Some(theta0);
         self.pending_watch = true;
         self.epoch = self.epoch.wrapping_add(1);

@@ -56,29 +56,34 @@ pub struct PrefilterCoeffs<T> {
     delayed: bool,
 }
 
+/// One period's recursion in f64: Φ and the weights of the held input at the period's start
+/// and at its end (the per-sample coefficients before rounding to `T`).
+fn per_sample_f64(lambda: f64, period: f64, hold: Hold) -> ([[f64; 2]; 2], [f64; 2], [f64; 2]) {
+    let l2 = lambda * lambda;
+    let a = [[0.0, 1.0], [-1.0 / l2, -2.0 / lambda]];
+    let b = [0.0, 1.0 / l2];
+    let d = discretize2(a, b, period);
+    // Zero-order hold over (t_{k-1}, t_k] with the new value x_k: x(t) = x_k on the period.
+    // First-order hold: x(t) = x_{k-1} + (x_k − x_{k-1})(t − t_{k-1})/h.
+    let (g_prev, g_new) = match hold {
+        Hold::Zero => ([0.0, 0.0], d.g0),
+        Hold::Smooth => (
+            [d.g0[0] - d.g1[0] / period, d.g0[1] - d.g1[1] / period],
+            [d.g1[0] / period, d.g1[1] / period],
+        ),
+    };
+    (d.phi, g_prev, g_new)
+}
+
 impl<T: Real> PrefilterCoeffs<T> {
     /// Coefficients for time constant `lambda` and period `period` (the same time unit), for an
     /// input held as `hold` between samples.
     pub fn new(lambda: f64, period: f64, hold: Hold) -> Self {
         let l2 = lambda * lambda;
-        let a = [[0.0, 1.0], [-1.0 / l2, -2.0 / lambda]];
-        let b = [0.0, 1.0 / l2];
-        let d = discretize2(a, b, period);
-        // Zero-order hold over (t_{k-1}, t_k] with the new value x_k: x(t) = x_k on the period.
-        // First-order hold: x(t) = x_{k-1} + (x_k − x_{k-1})(t − t_{k-1})/h.
-        let (g_prev, g_new) = match hold {
-            Hold::Zero => ([0.0, 0.0], d.g0),
-            Hold::Smooth => (
-                [d.g0[0] - d.g1[0] / period, d.g0[1] - d.g1[1] / period],
-                [d.g1[0] / period, d.g1[1] / period],
-            ),
-        };
+        let (phi, g_prev, g_new) = per_sample_f64(lambda, period, hold);
         let t = |v: f64| T::from_f64(v);
         Self {
-            phi: [
-                [t(d.phi[0][0]), t(d.phi[0][1])],
-                [t(d.phi[1][0]), t(d.phi[1][1])],
-            ],
+            phi: [[t(phi[0][0]), t(phi[0][1])], [t(phi[1][0]), t(phi[1][1])]],
             g_prev: [t(g_prev[0]), t(g_prev[1])],
             g_new: [t(g_new[0]), t(g_new[1])],
             inv_lambda2: t(1.0 / l2),
@@ -90,6 +95,147 @@ impl<T: Real> PrefilterCoeffs<T> {
             }),
             delayed: hold == Hold::Smooth,
         }
+    }
+}
+
+impl<T: Real> PrefilterCoeffs<T> {
+    /// `s²·x/Λ` of a [`Hold::Smooth`] filter from the sample its state describes (`x2`, the
+    /// one before the latest) and the state `y`, `ẏ`: [`Prefilter::ddx_smooth`]'s
+    /// operations, for a pass that keeps them apart.
+    #[inline(always)]
+    pub fn ddx(&self, x2: T, y: T, dy: T) -> T {
+        (x2 - y - self.two_lambda * dy) * self.inv_lambda2
+    }
+}
+
+/// Samples one group step advances a filter by ([`SmoothGroup`], [`HeldGroup`]): DIVE's
+/// information sums take one sample in 4 at 1 MHz, and between two of them no output of the
+/// filters is read (issue 14, round 12).
+pub const GROUP: usize = 4;
+
+/// Linear forms over a basis of `N` values, for unrolling a recursion exactly in f64.
+type Form<const N: usize> = [f64; N];
+
+fn unit<const N: usize>(i: usize) -> Form<N> {
+    let mut f = [0.0; N];
+    if let Some(v) = f.get_mut(i) {
+        *v = 1.0;
+    }
+    f
+}
+
+/// `Σ aᵢ·fᵢ`.
+fn comb<const N: usize>(terms: &[(f64, &Form<N>)]) -> Form<N> {
+    let mut out = [0.0; N];
+    for (a, f) in terms {
+        for (o, v) in out.iter_mut().zip(f.iter()) {
+            *o += a * v;
+        }
+    }
+    out
+}
+
+/// [`GROUP`] samples of a [`Hold::Smooth`] filter in one step: the per-sample recursion
+/// ([`Prefilter::advance_smooth`]) unrolled in f64, the new state a linear form of the old
+/// state `[y, ẏ]`, the held input, the two samples before the group and the group's four.
+/// Mathematically the per-sample steps; in f32 fewer roundings (9 products a state where the
+/// per-sample steps chain 4 × 4).
+#[derive(Clone, Copy, Debug)]
+pub struct SmoothGroup<T> {
+    /// Φ⁴.
+    phi: [[T; 2]; 2],
+    /// Weights of the held input, of x_{k−1}, x_k (before the group) and of the group's
+    /// samples x_{k+1} … x_{k+4}, per state.
+    w: [[T; 7]; 2],
+    /// 1/12: the held input after the group, formed as the per-sample step forms it.
+    curvature: T,
+}
+
+impl<T: Real> SmoothGroup<T> {
+    /// For time constant `lambda` and period `period`, as [`PrefilterCoeffs::new`].
+    pub fn new(lambda: f64, period: f64) -> Self {
+        let (phi, gp, gn) = per_sample_f64(lambda, period, Hold::Smooth);
+        let c = 1.0 / 12.0;
+        // Basis: y, ẏ, held, x_{k−1}, x_k, x_{k+1} … x_{k+4}.
+        let (mut y, mut dy, mut held) = (unit::<9>(0), unit::<9>(1), unit::<9>(2));
+        let (mut x2, mut x1) = (unit::<9>(3), unit::<9>(4));
+        for i in 0..GROUP {
+            let x = unit::<9>(5 + i);
+            // end = x1 − c·((x − x1) − (x1 − x2)).
+            let end = comb(&[(1.0 + 2.0 * c, &x1), (-c, &x), (-c, &x2)]);
+            let ny = comb(&[
+                (phi[0][0], &y),
+                (phi[0][1], &dy),
+                (gp[0], &held),
+                (gn[0], &end),
+            ]);
+            let ndy = comb(&[
+                (phi[1][0], &y),
+                (phi[1][1], &dy),
+                (gp[1], &held),
+                (gn[1], &end),
+            ]);
+            (y, dy, held, x2, x1) = (ny, ndy, end, x1, x);
+        }
+        let t = |v: f64| T::from_f64(v);
+        let w = |f: &Form<9>| {
+            [
+                t(f[2]),
+                t(f[3]),
+                t(f[4]),
+                t(f[5]),
+                t(f[6]),
+                t(f[7]),
+                t(f[8]),
+            ]
+        };
+        Self {
+            phi: [[t(y[0]), t(y[1])], [t(dy[0]), t(dy[1])]],
+            w: [w(&y), w(&dy)],
+            curvature: t(c),
+        }
+    }
+
+    /// Φ⁴ and the inputs' weights (held, x_{k−1}, x_k, x_{k+1} … x_{k+4}), per state: for
+    /// error bounds in tests.
+    pub fn coefficients(&self) -> ([[T; 2]; 2], [[T; 7]; 2]) {
+        (self.phi, self.w)
+    }
+}
+
+/// [`GROUP`] samples of a [`Hold::Zero`] filter in one step ([`Prefilter::update_held`]
+/// unrolled in f64): the new state a linear form of the old and of the four held inputs.
+#[derive(Clone, Copy, Debug)]
+pub struct HeldGroup<T> {
+    /// Φ⁴.
+    phi: [[T; 2]; 2],
+    /// Weights of the four inputs, per state.
+    w: [[T; 4]; 2],
+}
+
+impl<T: Real> HeldGroup<T> {
+    /// For time constant `lambda` and period `period`, as [`PrefilterCoeffs::new`].
+    pub fn new(lambda: f64, period: f64) -> Self {
+        let (phi, _, gn) = per_sample_f64(lambda, period, Hold::Zero);
+        // Basis: y, ẏ, the four inputs.
+        let (mut y, mut dy) = (unit::<6>(0), unit::<6>(1));
+        for i in 0..GROUP {
+            let x = unit::<6>(2 + i);
+            let ny = comb(&[(phi[0][0], &y), (phi[0][1], &dy), (gn[0], &x)]);
+            let ndy = comb(&[(phi[1][0], &y), (phi[1][1], &dy), (gn[1], &x)]);
+            (y, dy) = (ny, ndy);
+        }
+        let t = |v: f64| T::from_f64(v);
+        let w = |f: &Form<6>| [t(f[2]), t(f[3]), t(f[4]), t(f[5])];
+        Self {
+            phi: [[t(y[0]), t(y[1])], [t(dy[0]), t(dy[1])]],
+            w: [w(&y), w(&dy)],
+        }
+    }
+
+    /// Φ⁴ and the four inputs' weights, per state: for error bounds in tests.
+    pub fn coefficients(&self) -> ([[T; 2]; 2], [[T; 4]; 2]) {
+        (self.phi, self.w)
     }
 }
 
@@ -196,7 +342,7 @@ impl<T: Real> Prefilter<T> {
     /// sample before the latest (held in `x2` since [`Self::advance_smooth`]).
     #[inline(always)]
     pub fn ddx_smooth(&self, c: &PrefilterCoeffs<T>) -> T {
-        (self.x2 - self.y - c.two_lambda * self.dy) * c.inv_lambda2
+        c.ddx(self.x2, self.y, self.dy)
     }
 
     /// Take the new sample `x` of a staircase ([`Hold::Zero`] coefficients) and return `x/Λ` and
@@ -209,6 +355,67 @@ impl<T: Real> Prefilter<T> {
         self.y = y;
         self.dy = dy;
         (y, dy)
+    }
+
+    /// [`GROUP`] samples `x` of a smooth signal at once ([`SmoothGroup`]): the state
+    /// [`Self::advance_smooth`] leaves after the four, to the rounding of fewer operations.
+    #[inline(always)]
+    pub fn advance_smooth_group(&mut self, g: &SmoothGroup<T>, x: [T; GROUP]) {
+        let [a1, a2, a3, a4] = x;
+        let (w0, w1) = (&g.w[0], &g.w[1]);
+        let y = g.phi[0][0] * self.y
+            + g.phi[0][1] * self.dy
+            + w0[0] * self.held
+            + w0[1] * self.x2
+            + w0[2] * self.x1
+            + w0[3] * a1
+            + w0[4] * a2
+            + w0[5] * a3
+            + w0[6] * a4;
+        let dy = g.phi[1][0] * self.y
+            + g.phi[1][1] * self.dy
+            + w1[0] * self.held
+            + w1[1] * self.x2
+            + w1[2] * self.x1
+            + w1[3] * a1
+            + w1[4] * a2
+            + w1[5] * a3
+            + w1[6] * a4;
+        self.y = y;
+        self.dy = dy;
+        // The last period's held input, as the per-sample step forms it.
+        self.held = a3 - g.curvature * ((a4 - a3) - (a3 - a2));
+        self.x2 = a3;
+        self.x1 = a4;
+    }
+
+    /// [`GROUP`] held inputs `x` of a staircase at once ([`HeldGroup`]): the state four
+    /// [`Self::update_held`] steps leave, returned as `x/Λ`, `s·x/Λ`.
+    #[inline(always)]
+    pub fn update_held_group(&mut self, g: &HeldGroup<T>, x: [T; GROUP]) -> (T, T) {
+        let [a1, a2, a3, a4] = x;
+        let (w0, w1) = (&g.w[0], &g.w[1]);
+        let y = g.phi[0][0] * self.y
+            + g.phi[0][1] * self.dy
+            + w0[0] * a1
+            + w0[1] * a2
+            + w0[2] * a3
+            + w0[3] * a4;
+        let dy = g.phi[1][0] * self.y
+            + g.phi[1][1] * self.dy
+            + w1[0] * a1
+            + w1[1] * a2
+            + w1[2] * a3
+            + w1[3] * a4;
+        self.y = y;
+        self.dy = dy;
+        (y, dy)
+    }
+
+    /// The held input and the last two samples (for error bounds in tests).
+    #[cfg(test)]
+    pub(crate) fn inputs(&self) -> [T; 3] {
+        [self.held, self.x2, self.x1]
     }
 
     /// The current outputs `x/Λ` and `s·x/Λ` without a new sample.

@@ -9,9 +9,12 @@
 //! filters, the block sums [`BlockStats`] over the estimating ones, the block update of
 //! [`crate::estimator`] and the divergence watch) turns into a [`BlockResult`]. On the firmware the task is a lower-priority interrupt handed each
 //! block whole (its header and samples in a buffer passed through a lock-free queue) and runs
-//! it in passes on the buffer ([`EstimatorTask::run_in_place`]); on the host it runs in-line, its sums added as the
-//! samples come ([`BlockSums`]). Both follow the same schedule and add the same samples in the
-//! same order, so their results are bit-identical:
+//! it in passes on the buffer ([`EstimatorTask::run_in_place`]); on the host it runs in-line,
+//! on the block's samples staged as the firmware's buffer holds them ([`Staged`]) and by the
+//! same pass (issue 14, round 12: DIVE's grouped prefilters take their groups from the
+//! block's own samples, known only at its close; until then the host added each sample to
+//! the block sums as it came, [`BlockSums`]). Both follow the same schedule and add the same
+//! samples in the same order, so their results are bit-identical:
 //!
 //! * the block clock is the loop's sample counter: a block closes at the start of every N-th
 //!   sample (the first sample of the next block), holding the samples the estimator took in
@@ -31,9 +34,9 @@ use crate::excitation::{
     fill_chunk, Ahead, ChunkKey, ExcitationParams, SineTable, ToneSource, RESYNC,
 };
 use crate::guard::{GuardParams, Watch};
-use crate::prefilter::HighPass;
+use crate::prefilter::{Filtered, HighPass, GROUP};
 use crate::real::Real;
-use crate::regressor::{Regressor, RegressorParams};
+use crate::regressor::{w_of, GroupParams, Regressor, RegressorParams};
 
 /// Which estimator and constants a block is for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -287,6 +290,9 @@ pub struct EstimatorTask<T> {
     reg: Regressor<T>,
     /// The SVE high-passes of w, φ₁, φ₂ (decoupled regressor).
     hp: [HighPass<T>; 3],
+    /// The prefilters four samples at a time (DIVE at 1 MHz); last, so that the fields
+    /// above keep their offsets.
+    groups: GroupParams<T>,
 }
 
 /// Status bits of an update.
@@ -425,11 +431,125 @@ fn prefilter_strided<T: Real, const S: usize>(
     (f, all)
 }
 
+/// The most samples one block hands over (`estimator.decimation` ≤ 64; those to discard
+/// before a restart and the block's own are one window of the sample clock): the firmware's
+/// block buffers and the host's staged block ([`crate::Controller::step_internal`]).
+pub const BLOCK_MAX: usize = 64;
+
+/// The host's copy of the firmware's staged block buffer (issue 14, round 12): the samples
+/// handed over since the last header, run by the same pass as the firmware's
+/// ([`EstimatorTask::run_in_place`]) when the header comes, so that the grouped prefilters,
+/// whose groups follow the block's own samples, take the same groups on both (a sample's
+/// place among them is known only at the close: a restart later in the block makes it one
+/// of the discarded). A sample beyond [`BLOCK_MAX`] is lost and its block only feeds the
+/// filters, as the firmware's link does.
+#[derive(Clone, Copy, Debug)]
+pub struct Staged<T> {
+    n: u32,
+    lost: u32,
+    samples: [Sample<T>; BLOCK_MAX],
+}
+
+impl<T: Real> Default for Staged<T> {
+    fn default() -> Self {
+        Self {
+            n: 0,
+            lost: 0,
+            samples: [Sample::default(); BLOCK_MAX],
+        }
+    }
+}
+
+impl<T: Real> Staged<T> {
+    /// One sample handed over, in order.
+    #[inline(always)]
+    pub fn push(&mut self, s: Sample<T>) {
+        match self.samples.get_mut(self.n as usize) {
+            Some(slot) => {
+                *slot = s;
+                self.n += 1;
+            }
+            None => self.lost = self.lost.wrapping_add(1),
+        }
+    }
+
+    /// The block `b` closed: its samples (those staged) through `task`, the buffer empty
+    /// again.
+    #[inline(always)]
+    pub fn run(&mut self, task: &mut EstimatorTask<T>, mut b: Block<T>) -> BlockResult<T> {
+        if core::mem::take(&mut self.lost) != 0 {
+            b.skip = self.n;
+            b.samples = 0;
+        }
+        let n = core::mem::take(&mut self.n) as usize;
+        let staged = match self.samples.get_mut(..n) {
+            Some(s) => s,
+            None => &mut [],
+        };
+        task.run_in_place(&b, staged)
+    }
+}
+
+/// Whether a block for `target` with the sums' stride mask `mask` takes the grouped pass
+/// ([`prefilter_grouped`]) when its first own sample estimates: DIVE at a stride of
+/// [`GROUP`] (1 MHz).
+#[inline(always)]
+fn grouped(target: Target, mask: u32) -> bool {
+    matches!(target, Target::Dive2 | Target::Dive3) && mask as usize + 1 == GROUP
+}
+
+/// One group's `w` and `φ₁`, `φ₂` from the Z filter's outputs `z` (after the group), the U
+/// filter's `ux`, `udx` and the reference `r`: [`Regressor::w`] and [`Regressor::phi_sve`]'s
+/// operations.
+#[inline(always)]
+fn group_read<T: Real>(p: &RegressorParams<T>, z: &Filtered<T>, ux: T, udx: T, r: T) -> [T; 3] {
+    [w_of(p, z, ux, udx), -z.dx, r - z.x]
+}
+
+/// The prefilters over a DIVE block's own samples at the sums' stride of [`GROUP`] (issue
+/// 14, round 12): in groups of four from the first, each advanced in one step
+/// ([`Regressor::z_group`], [`Regressor::u_group`]), the last of each group the one the sums
+/// read (`w`, `φ₁`, `φ₂` over its `z`, `u`, `r`, whatever its flags: DIVE's are only
+/// [`SAMPLE_EST`] or none, and no test per group); a shorter last group per sample, unread.
+/// Two passes, the Z filter's then the U filter's, so that each one's coefficients (19 and
+/// 12) stay in the FPU's 32 registers; the Z pass leaves Z/Λ and s·Z/Λ in the group's first
+/// two `z` (read already), its third `z` the sample s²·Z/Λ needs. Own samples run no
+/// high-passes (the loop flags none in a DIVE block: SVE's restart comes before its first
+/// flagged sample).
+#[inline(always)]
+fn prefilter_grouped<T: Real>(
+    p: &RegressorParams<T>,
+    q: &GroupParams<T>,
+    reg: &mut Regressor<T>,
+    own: &mut [Sample<T>],
+) {
+    let mut groups = own.chunks_exact_mut(GROUP);
+    for g in groups.by_ref() {
+        let [a, b, c, d] = g else { continue };
+        reg.z_group(q, [a.z, b.z, c.z, d.z]);
+        (a.z, b.z) = (reg.z_x(), reg.z_dx());
+    }
+    for x in groups.into_remainder() {
+        reg.update_z(p, x.z);
+    }
+    let mut groups = own.chunks_exact_mut(GROUP);
+    for g in groups.by_ref() {
+        let [a, b, c, d] = g else { continue };
+        let (ux, udx) = reg.u_group(q, [a.u, b.u, c.u, d.u]);
+        let z = p.z_filtered(c.z, a.z, b.z);
+        [d.z, d.u, d.r] = group_read(p, &z, ux, udx, d.r);
+    }
+    for x in groups.into_remainder() {
+        reg.update_u(p, x.u);
+    }
+}
+
 impl<T: Real> EstimatorTask<T> {
     /// The estimators at DIVE's θ̂₀ with P₀, the prefilters at rest with the tip and the
     /// base at `u0`.
-    pub fn new(p: TaskParams<T>, theta0: [T; 3], u0: T) -> Self {
+    pub fn new(p: TaskParams<T>, groups: GroupParams<T>, theta0: [T; 3], u0: T) -> Self {
         Self {
+            groups,
             est2: Estimator::new(&p.dive2, [theta0[0], theta0[1]]),
             est3: Estimator::new(&p.dive3, theta0),
             watch: Watch::default(),
@@ -522,7 +642,9 @@ impl<T: Real> EstimatorTask<T> {
     }
 
     /// The stride of the information sums less one (a mask: the stride is a power of two):
-    /// the block's sample `j` (from 0, its own samples) goes into the sums when `j & mask` is 0.
+    /// the block's sample `j` (from 0, its own samples) goes into the sums when `j & mask` is 0
+    /// — but in DIVE's blocks at a stride of [`GROUP`] when it is `mask`, the last of each
+    /// group of the grouped prefilters (issue 14, round 12).
     #[inline(always)]
     pub fn stride_mask(&self, target: Target) -> u32 {
         match target {
@@ -551,12 +673,49 @@ impl<T: Real> EstimatorTask<T> {
         let mask = self.stride_mask(target);
         let p = &self.p;
         let mut n = 0u32;
-        if target.two() {
-            // The filters in locals for the block (see `feed_filters`).
-            let (mut reg, mut hp) = (self.reg, self.hp);
-            for x in samples.by_ref().take(b.skip as usize) {
-                feed_filters(p, &mut reg, &mut hp, &x);
+        // The filters in locals for the block (see `feed_filters`).
+        let (mut reg, mut hp) = (self.reg, self.hp);
+        for x in samples.by_ref().take(b.skip as usize) {
+            feed_filters(p, &mut reg, &mut hp, &x);
+        }
+        let mut samples = samples.peekable();
+        if grouped(target, mask) && samples.peek().is_some_and(|x| x.flags & SAMPLE_EST != 0) {
+            // `run_in_place_grouped` in one pass: the same group steps and reads.
+            let mut sums = BlockSums::<T>::default();
+            let mut g = [Sample::default(); GROUP];
+            let mut k = 0;
+            for x in samples {
+                if let Some(slot) = g.get_mut(k) {
+                    *slot = x;
+                }
+                k += 1;
+                if k == GROUP {
+                    k = 0;
+                    let [a, b1, c, d] = g;
+                    reg.z_group(&self.groups, [a.z, b1.z, c.z, d.z]);
+                    let z = p.reg.z_filtered(c.z, reg.z_x(), reg.z_dx());
+                    let (ux, udx) = reg.u_group(&self.groups, [a.u, b1.u, c.u, d.u]);
+                    let [w, f0, f1] = group_read(&p.reg, &z, ux, udx, d.r);
+                    if d.flags & SAMPLE_EST != 0 {
+                        sums.add(target, (ip, ai), w, &[f0, f1, T::ONE]);
+                    }
+                }
             }
+            for x in g.iter().take(k) {
+                reg.update(&p.reg, x.u, x.z);
+            }
+            (self.reg, self.hp) = (reg, hp);
+            self.restarts(b);
+            let bi = (sums.n != 0).then(|| {
+                if target.two() {
+                    self.update2(target, &sums.s2)
+                } else {
+                    self.update3(target, &sums.s3)
+                }
+            });
+            return self.finish(b, bi);
+        }
+        if target.two() {
             let mut s = BlockStats::<T, 2>::default();
             for (j, x) in samples.enumerate() {
                 if let Some((w, phi)) = feed_filters(p, &mut reg, &mut hp, &x) {
@@ -575,23 +734,16 @@ impl<T: Real> EstimatorTask<T> {
             let bi = (n != 0).then(|| self.update2(target, &s));
             self.finish(b, bi)
         } else {
-            // The filters stay in the task's memory: in locals, with the three-parameter
-            // sums and the coefficients they outnumber the FPU's registers, and the spills
-            // cost more than the loads and stores they save (`cargo xtask bench`: 4 184 →
-            // 5 415 per DIVE block, where the two-parameter SVE block gains 5 040 → 4 572).
-            let (reg, hp) = (&mut self.reg, &mut self.hp);
-            for x in samples.by_ref().take(b.skip as usize) {
-                feed_filters(p, reg, hp, &x);
-            }
             let mut s = BlockStats::<T, 3>::default();
             for (j, x) in samples.enumerate() {
-                if let Some((w, phi)) = feed_filters(p, reg, hp, &x) {
+                if let Some((w, phi)) = feed_filters(p, &mut reg, &mut hp, &x) {
                     if j as u32 & mask == 0 {
                         s.add(ip, ai, w, &phi);
                         n += 1;
                     }
                 }
             }
+            (self.reg, self.hp) = (reg, hp);
             let s = core::hint::black_box(s);
             self.restarts(b);
             let bi = (n != 0).then(|| self.update3(target, &s));
@@ -615,6 +767,16 @@ impl<T: Real> EstimatorTask<T> {
     /// tell, and would order every sample's loads after the previous sample's stores.
     #[inline(never)]
     pub fn run_in_place(&mut self, b: &Block<T>, samples: &mut [Sample<T>]) -> BlockResult<T> {
+        // DIVE's estimating blocks at 1 MHz (by their first own sample: a per-block test);
+        // the approach's and retract's blocks, and those before a mode's first restart (SVE's
+        // approach among them: SVE's results do not move), per sample.
+        if grouped(b.target, self.stride_mask(b.target))
+            && samples
+                .get(b.skip as usize)
+                .is_some_and(|x| x.flags & SAMPLE_EST != 0)
+        {
+            return self.run_in_place_grouped(b, samples);
+        }
         let take = b.skip.wrapping_add(b.samples) as usize;
         let samples = match samples.get_mut(..take) {
             Some(s) => s,
@@ -772,6 +934,71 @@ impl<T: Real> EstimatorTask<T> {
                         s.add(ip, ai, x.z, &[x.u, x.r, T::ONE]);
                         n += 1;
                     }
+                }
+            }
+            let s = core::hint::black_box(s);
+            self.restarts(b);
+            let bi = (n != 0).then(|| self.update3(target, &s));
+            self.finish(b, bi)
+        }
+    }
+
+    /// [`Self::run_in_place`] for a DIVE block at a stride of [`GROUP`] (issue 14, round
+    /// 12): the discarded samples per sample as there, the block's own in groups of four
+    /// ([`prefilter_grouped`]), the last of each group into the sums when estimating. No
+    /// test of a sample's flags in the filters' passes. Out of line, as `run_in_place`, and
+    /// apart from it: its registers and stack are its own, the other blocks' code unchanged.
+    #[inline(never)]
+    fn run_in_place_grouped(&mut self, b: &Block<T>, samples: &mut [Sample<T>]) -> BlockResult<T> {
+        let take = b.skip.wrapping_add(b.samples) as usize;
+        let samples = match samples.get_mut(..take) {
+            Some(s) => s,
+            None => samples,
+        };
+        let target = b.target;
+        let (ip, ai) = self.acc(target);
+        let p = &self.p;
+        let skip = (b.skip as usize).min(samples.len());
+        let (head, own) = match samples.split_at_mut_checked(skip) {
+            Some(parts) => parts,
+            None => (&mut [][..], &mut [][..]),
+        };
+        let mut reg = self.reg;
+        let mut hp_flags = 0;
+        for x in head.iter_mut() {
+            hp_flags |= prefilter_slot(&p.reg, &mut reg, x, SAMPLE_HP | SAMPLE_HP_REST);
+        }
+        prefilter_grouped(&p.reg, &self.groups, &mut reg, own);
+        self.reg = reg;
+        if hp_flags & (SAMPLE_HP | SAMPLE_HP_REST) != 0 {
+            // SVE's samples before the restart: its high-passes' state, as in the other path.
+            let mut hp = self.hp;
+            for x in head.iter() {
+                high_pass(p.highpass, &mut hp, x);
+            }
+            self.hp = hp;
+        }
+        let reads = own.iter().skip(GROUP - 1).step_by(GROUP);
+        let mut n = 0u32;
+        if target.two() {
+            let mut s = BlockStats::<T, 2>::default();
+            for x in reads {
+                if x.flags & SAMPLE_EST != 0 {
+                    s.add(ip, ai, x.z, &[x.u, x.r]);
+                    n += 1;
+                }
+            }
+            // A copy for the update (see `run`).
+            let s = core::hint::black_box(s);
+            self.restarts(b);
+            let bi = (n != 0).then(|| self.update2(target, &s));
+            self.finish(b, bi)
+        } else {
+            let mut s = BlockStats::<T, 3>::default();
+            for x in reads {
+                if x.flags & SAMPLE_EST != 0 {
+                    s.add(ip, ai, x.z, &[x.u, x.r, T::ONE]);
+                    n += 1;
                 }
             }
             let s = core::hint::black_box(s);
