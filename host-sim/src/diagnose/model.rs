@@ -249,23 +249,12 @@ impl BedGeometry {
     /// binary searches per call were a tenth of a simulation).
     #[inline]
     pub fn at(&self, d: f64) -> (f64, f64, usize) {
-        if self.lattice {
-            let n = self.sags.partition_point(|&s| s < d);
-            (
-                self.cell * (n as f64 * d - self.prefix[n]),
-                self.cell * n as f64,
-                n,
-            )
-        } else {
-            (
-                cap_volume(self.r, d),
-                contact_area(self.r, d),
-                usize::from(d > 0.0),
-            )
-        }
+        let n = self.engaged(d);
+        let (vol, a) = self.at_count(d, n);
+        (vol, a, n)
     }
-    /// (V(δ), A(δ)) on a lattice where `n` = [`Self::engaged`]`(δ)` is known: [`Self::at`]'s
-    /// bit for bit without its search.
+    /// (V(δ), A(δ)) where `n` = [`Self::engaged`]`(δ)` is known (the one place of the
+    /// lattice's sums; [`Self::at`] searches for `n` first).
     #[inline]
     pub fn at_count(&self, d: f64, n: usize) -> (f64, f64) {
         debug_assert!(self.engages(d, n));
@@ -279,12 +268,7 @@ impl BedGeometry {
     /// V(δ) (nm³).
     #[inline]
     pub fn volume(&self, d: f64) -> f64 {
-        if self.lattice {
-            let n = self.engaged(d);
-            self.cell * (n as f64 * d - self.prefix[n])
-        } else {
-            cap_volume(self.r, d)
-        }
+        self.at(d).0
     }
     /// A(δ) = dV/dδ (nm²).
     #[inline]
