@@ -38,7 +38,9 @@ pub trait LoopReal: SineTable {
     fn from_metres(d_m: f32) -> Self;
     /// A deflection back in metres (telemetry).
     fn to_metres(d: Self) -> f32;
-    /// One loop sample (with the block estimator run in-line: the host's reference).
+    /// One loop sample (with the block estimator run in-line: the host's reference; not on
+    /// the firmware, whose core has no in-line task).
+    #[cfg(not(target_os = "none"))]
     fn step(c: &mut Controller<Self>, d: Self) -> StepOut<Self>;
     /// One loop sample without the block estimator (the firmware's loop interrupt, which
     /// hands the samples of a running mode to `sink` and the block headers to its estimator
@@ -78,6 +80,7 @@ impl LoopReal for f32 {
     fn to_metres(d: f32) -> f32 {
         d
     }
+    #[cfg(not(target_os = "none"))]
     #[inline(always)]
     fn step(c: &mut Controller<f32>, d: f32) -> StepOut<f32> {
         c.step(d)
@@ -133,6 +136,7 @@ impl LoopReal for Q32 {
     fn to_metres(d: Q32) -> f32 {
         nm_to_m(d)
     }
+    #[cfg(not(target_os = "none"))]
     #[inline(always)]
     fn step(c: &mut Controller<Q32>, d: Q32) -> StepOut<Q32> {
         c.step_internal(d)

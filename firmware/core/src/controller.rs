@@ -37,8 +37,10 @@ use crate::geometry::mean_sag;
 use crate::guard::{FaultBits, Guard, GuardParams};
 use crate::prefilter::HighPass;
 use crate::regressor::{GroupParams, RegressorParams};
+#[cfg(not(target_os = "none"))]
+use crate::schedule::Staged;
 use crate::schedule::{
-    Block, BlockResult, EstimatorTask, Sample, SampleSink, Staged, Target, TaskParams, ToneAhead,
+    Block, BlockResult, EstimatorTask, Sample, SampleSink, Target, TaskParams, ToneAhead,
     SAMPLE_EST, SAMPLE_HP, SAMPLE_HP_REST, TONES_DIVE, TONES_SVE,
 };
 use crate::units;
@@ -699,13 +701,17 @@ pub struct Controller<T> {
     pending_watch: bool,
     /// Bumped by every restart: results of older blocks are dropped.
     epoch: u32,
-    /// The host's in-line result, adopted at the next block close.
+    /// The host's in-line result, adopted at the next block close. Not on the firmware
+    /// (bare metal: its estimator interrupt returns the results), nor `host_stage`.
+    #[cfg(not(target_os = "none"))]
     inflight: Option<BlockResult<T>>,
     /// The estimators (per sample with blocks of 1; else the host's in-line estimator task,
     /// and on the firmware only a copy that gives the restarts' projected θ̂₀).
     task: EstimatorTask<T>,
     /// The host's in-line task's samples of the block being accumulated
-    /// ([`Self::step_internal`]; on the firmware they go to the estimator task's buffers).
+    /// ([`Self::step_internal`]; on the firmware they go to the estimator task's buffers, and
+    /// its 1 KiB would sit unused in the loop's RAM).
+    #[cfg(not(target_os = "none"))]
     host_stage: Staged<T>,
     cfg: Config,
 }
@@ -988,11 +994,13 @@ impl<T: SineTable> Controller<T> {
             carry: 0,
             closed_steps: 0,
             skip_n: 0,
+            #[cfg(not(target_os = "none"))]
             host_stage: Staged::default(),
             target: Target::Dive3,
             pending_restart: None,
             pending_watch: false,
             epoch: 0,
+            #[cfg(not(target_os = "none"))]
             inflight: None,
             adopted: 0,
             depth: DepthController::new(u),
@@ -1338,7 +1346,9 @@ impl<T: SineTable> Controller<T> {
         self.sve.force_slow * T::from_f64(units::FORCE)
     }
 
-    /// One loop sample: the measured deflection `d_m` (m) in, the next outputs out.
+    /// One loop sample: the measured deflection `d_m` (m) in, the next outputs out. (The
+    /// host's; the firmware runs [`Self::step_loop`] and its estimator interrupt.)
+    #[cfg(not(target_os = "none"))]
     #[inline(always)]
     pub fn step(&mut self, d_m: T) -> StepOut<T> {
         self.step_internal(d_m * self.p.to_internal)
@@ -1357,7 +1367,8 @@ impl<T: SineTable> Controller<T> {
     ///
     /// With blocks of N > 1 samples this runs the estimator task in-line on every block the
     /// step closes, on the schedule of [`crate::schedule`]: the same results as the
-    /// firmware's two interrupts.
+    /// firmware's two interrupts. (The host's, as [`Self::step`].)
+    #[cfg(not(target_os = "none"))]
     #[inline(always)]
     pub fn step_internal(&mut self, d_nm: T) -> StepOut<T> {
         if self.block_due() {
