@@ -121,9 +121,6 @@ pub struct PhaseRms {
 pub struct Evidence {
     pub statistic: String,
     pub value: Num,
-    /// The held-out test's z: the score along the effect for the first finding (tested
-    /// against the nominal model), the likelihood ratio standardised for later ones;
-    /// Diebold–Mariano's where misfit dominates the residual.
     pub z: Num,
     pub p_value: Num,
     pub level: Num,

@@ -10,15 +10,10 @@
 //! * [`held_out_test`]: does an extension, fitted on the fit samples, explain the held-out
 //!   samples better than the model it extends? With ε₀ and ε₁ the whitened held-out residuals
 //!   of the two and w = ε₀ − ε₁ (the extension's whitened contribution, fixed by the fit
-//!   samples), the test is the score test along w (a matched filter):
-//!   `z = Σε₀·w/(σ‖w‖)`. Without the effect ε₀ is white noise independent of w, so z is
-//!   N(0, 1) whatever the extension's size or shape: a one-sided test at a stated false-alarm
-//!   rate. With an effect that w follows, z ≈ ‖w‖/σ. The held-out log-likelihood ratio
-//!   `Σ(ε₀² − ε₁²)/2σ² = (Σε₀·w − ½Σw²)/σ²`, standardised, was the test before: it is
-//!   `z − ‖w‖/2σ`, N(−‖w‖/2σ, 1) without the effect and ≈ ‖w‖/2σ with it — half the score's
-//!   evidence, and its penalty turns on the fitted amplitude, which moves between nearby
-//!   optima with the fit's last digits (README, issue 13). The ratio still ranks the
-//!   candidates, and a candidate must raise it (predict the held-out samples better).
+//!   samples), the held-out log-likelihood ratio is `Σ(ε₀² − ε₁²)/2σ² = (Σε₀·w − ½Σw²)/σ²`.
+//!   Without the effect ε₀ is white noise independent of w, so `z = (Σε₀w − ½Σw²)/(σ‖w‖)` is
+//!   N(−‖w‖/2σ, 1): `P(z > z_α) ≤ α` whatever the extension — a one-sided test at a stated
+//!   false-alarm rate, and conservative.
 //! * [`diebold_mariano`]: the same question where the residuals are dominated by misfit, not
 //!   noise (real recordings before their large effects are modelled): there a noise model
 //!   fitted to the residual describes the misfit, and whitening with it can turn a far
@@ -188,7 +183,7 @@ pub fn runs(mask: &[bool]) -> Vec<(usize, usize)> {
 /// The held-out comparison of a model and its extension (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct HeldOut {
-    /// The score statistic z (standard normal without the effect).
+    /// The standardised log-likelihood ratio z.
     pub z: f64,
     /// One-sided p-value of z.
     pub p_value: f64,
@@ -198,19 +193,6 @@ pub struct HeldOut {
     pub effect_size: f64,
     /// Samples compared.
     pub n: usize,
-}
-
-impl HeldOut {
-    /// The standardised likelihood ratio instead of the score: `z − ‖w‖/2σ` (the module docs),
-    /// the stricter test, which asks that the extension predict better by more than chance.
-    pub fn likelihood_ratio(self) -> HeldOut {
-        let z = self.z - 0.5 * self.effect_size;
-        HeldOut {
-            z,
-            p_value: normal_sf(z),
-            ..self
-        }
-    }
 }
 
 /// Compares whitened held-out residuals `e0` (model) and `e1` (extension) where `mask` holds,
@@ -227,12 +209,7 @@ pub fn held_out_test(e0: &[f64], e1: &[f64], mask: &[bool], sigma: f64) -> HeldO
     }
     let s2 = sigma * sigma;
     let norm = sigma * ww.sqrt();
-    // Σε₀·w = gain + ½‖w‖²: the score along w.
-    let z = if norm > 0.0 {
-        (gain + 0.5 * ww) / norm
-    } else {
-        0.0
-    };
+    let z = if norm > 0.0 { gain / norm } else { 0.0 };
     HeldOut {
         z,
         p_value: normal_sf(z),
@@ -419,23 +396,18 @@ mod tests {
         }
     }
 
-    /// On pure noise the held-out test's z exceeds z_α as often as α (within three binomial
-    /// standard errors over 2000 trials of an extension fitted to the other half's noise), and
-    /// with an effect its mean is the effect's size over the noise, ‖w‖/σ, twice what the
-    /// standardised likelihood ratio gives.
+    /// On pure noise the held-out test's z exceeds z_α no more often than α (it is
+    /// conservative): 2000 trials of an extension fitted to the other half's noise.
     #[test]
     fn held_out_test_keeps_its_false_alarm_rate() {
         let mut rng = NormalRng::new(11);
         let n = 400;
+        let mut alarms = 0;
         let trials = 2000;
         let mask: Vec<bool> = (0..n).map(|i| (i / 20) % 2 == 1).collect();
-        // Held-out samples of the second half (where the step acts).
-        let m = (n / 2..n).filter(|&i| mask[i]).count() as f64;
-        let mut trial = |step: f64| {
-            let e0: Vec<f64> = (0..n)
-                .map(|i| rng.normal() + if i >= n / 2 { step } else { 0.0 })
-                .collect();
-            // An "extension": a step fitted (least squares) to the fit half's data.
+        for _ in 0..trials {
+            let e0: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
+            // An "extension": a step fitted (least squares) to the fit half's noise.
             let (mut s, mut c) = (0.0, 0);
             for i in n / 2..n {
                 if !mask[i] {
@@ -447,25 +419,14 @@ mod tests {
             let e1: Vec<f64> = (0..n)
                 .map(|i| if i >= n / 2 { e0[i] - level } else { e0[i] })
                 .collect();
-            held_out_test(&e0, &e1, &mask, 1.0)
-        };
-        let mut alarms = 0;
-        for _ in 0..trials {
-            if trial(0.0).p_value < 0.05 {
+            let t = held_out_test(&e0, &e1, &mask, 1.0);
+            if t.p_value < 0.05 {
                 alarms += 1;
             }
         }
         let rate = alarms as f64 / trials as f64;
-        let se = (0.05f64 * 0.95 / trials as f64).sqrt();
-        assert!((rate - 0.05).abs() <= 3.0 * se, "false-alarm rate {rate}");
-        // A step of 0.3σ over the m held-out samples: E z = 0.3·√m (the fitted step's sign
-        // is wrong in ~0.1 % of trials, −0.008 on the mean), within three standard errors of the mean.
-        let step = 0.3;
-        let mean = (0..trials).map(|_| trial(step).z).sum::<f64>() / trials as f64;
-        let expect = step * m.sqrt();
-        assert!(
-            (mean - expect).abs() <= 3.0 / (trials as f64).sqrt(),
-            "mean z {mean}, expected {expect}"
-        );
+        assert!(rate <= 0.05, "false-alarm rate {rate}");
+        // And not absurdly conservative for a fitted effect of this size.
+        assert!(rate > 0.001, "false-alarm rate {rate}");
     }
 }

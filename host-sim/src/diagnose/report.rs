@@ -494,7 +494,7 @@ impl Diagnosis {
                      {SCREEN_POLISHED} best (and adhesion beside surface attraction) fitted \
                      on the fit samples, the others only where a brief fit already beats the \
                      worst of those; each fitted one tested on the held-out samples \
-                     (score test along the extension's whitened contribution against the nominal model, the likelihood ratio standardised after a named effect, one-sided z; the held-out likelihood must rise too); the significant one with the \
+                     (whitened likelihood ratio, one-sided z); the significant one with the \
                      largest held-out likelihood gain joins the model"
                 ),
                 family_alpha: self.alpha,

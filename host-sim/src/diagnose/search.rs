@@ -217,14 +217,11 @@ impl Tested {
         self.contribution.iter().fold(0.0, |a, b| a.max(b.abs()))
     }
     /// Whether it is reported at per-test level `level`: the held-out test passes, it is
-    /// larger than the detection floor, the held-out fit improves (its likelihood over every
-    /// held-out sample, and its RMS where it acts: the score test asks only whether the
-    /// held-out misfit lies along the extension, not whether its size is right), and none
+    /// larger than the detection floor, the held-out fit improves where it acts, and none
     /// of its amplitudes sits at a physical limit (a creep fraction at its largest, a mode's
     /// gain at its bound: an extension that needs that is standing in for other physics).
     pub fn passes(&self, level: f64) -> bool {
         self.test.p_value < level
-            && self.test.loglik_gain > 0.0
             && self.peak() >= DETECTION_FLOOR * self.noise_rms
             && self.rms_where_after < self.rms_where_before
             && !self.at_limit()
@@ -944,20 +941,13 @@ impl Problem {
     }
 
     /// The held-out test of `ext` against `base` (residuals over every sample): whitened
-    /// while the base's residual is noise, Diebold–Mariano where misfit dominates it
-    /// ([`super::noise`]). The whitened test is the score along the extension when the base
-    /// is the nominal model (`first`), the standardised likelihood ratio when it already
-    /// holds a named effect: that effect's law is the tool's form of the physics, not the
-    /// physics, so its form error is a systematic misfit in proportion to the effect, and the
-    /// score names whatever extension lies along it. Measured on refsim's 220 recordings: with
-    /// the score at every stage, 23.9 % of the right namings gained a wrong second name
-    /// (README, issue 13).
+    /// likelihood ratio while the base's residual is noise, Diebold–Mariano where misfit
+    /// dominates it ([`super::noise`]).
     pub fn test(
         &self,
         r_base: &[f64],
         r_ext: &[f64],
         contribution: &[f64],
-        first: bool,
     ) -> (HeldOut, NoiseModel) {
         let noise = self.noise_model(r_ext);
         if self.huber_nm.is_some() || self.misfit_dominated(r_base) {
@@ -978,15 +968,10 @@ impl Problem {
         } else {
             noise.sigma
         };
-        let score = held_out_test(&e0, &e1, &self.held, sigma);
-        let lr = if first {
-            score
-        } else {
-            score.likelihood_ratio()
-        };
+        let lr = held_out_test(&e0, &e1, &self.held, sigma);
         // A noise model fitted to a residual that still carries slow misfit has a root near
         // one (its whitening filter nearly zero at low frequency): whitening then cancels any
-        // slow difference of the two fits, and the whitened test cannot see a slow effect
+        // slow difference of the two fits, and the likelihood ratio cannot see a slow effect
         // (a relaxation over a hold). The model-free comparison of the raw held-out residuals
         // where the extension acts can. Each is taken at half the level (Bonferroni), so the
         // pair's false-alarm rate stays within the level.
@@ -1475,7 +1460,7 @@ impl Problem {
                     .zip(self.residual(&without, &env))
                     .map(|(a, b)| b - a)
                     .collect();
-                let (test, noise) = self.test(&r_model, &r_ext, &contribution, stage == 0);
+                let (test, noise) = self.test(&r_model, &r_ext, &contribution);
                 let (rms_where_before, rms_where_after) =
                     self.rms_where(&r_model, &r_ext, &contribution);
                 // The noise the extension leaves: its residual RMS where the tip is free (in
