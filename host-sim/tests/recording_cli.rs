@@ -363,3 +363,27 @@ fn every_malformed_input_fails_cleanly_without_output() {
         );
     }
 }
+
+/// Output into a pipe its reader closed (`visco … | head`) ends quietly with the shell's
+/// status for SIGPIPE, not in a panic. The read end is closed as soon as the child starts,
+/// before it prints its 40 KB schema (should the child win that race, it exits normally, which
+/// the test also accepts: only a panic fails it).
+#[test]
+fn a_closed_pipe_ends_the_output_without_a_panic() {
+    use std::process::Stdio;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_visco"))
+        .args(["schema", "identify"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run visco");
+    drop(child.stdout.take());
+    let o = child.wait_with_output().expect("wait for visco");
+    let err = text(&o.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(
+        o.status.success() || o.status.code() == Some(141),
+        "status {:?}: {err}",
+        o.status
+    );
+}
