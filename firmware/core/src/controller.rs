@@ -1212,10 +1212,13 @@ impl<T: SineTable> Controller<T> {
     }
 
     /// The usual path from the mode, the phase and `ModeNow::sve_fast`: where any of them
-    /// changes.
+    /// changes, and where a result's status bits are adopted and taken (`adopted`).
     #[inline(always)]
     fn update_hot(&mut self) {
         self.hot = match (self.mode, self.phase) {
+            // A sample with adopted bits takes the general path, which reports them (issue
+            // 14, round 15): the usual paths neither read nor clear `adopted`.
+            _ if self.adopted != 0 => Hot::None,
             // The dwell's path adds to t without saturating (`step_loop`): from below u32::MAX.
             (Some(Mode::Dive), Phase::Dwell) if self.dive.t != u32::MAX => Hot::DiveDwell,
             (Some(Mode::Sve), Phase::Forward | Phase::Backward) if self.now.sve_fast => {
@@ -1310,6 +1313,10 @@ impl<T: SineTable> Controller<T> {
             self.theta3 = r.theta;
         }
         self.adopted = r.flags;
+        if r.flags != 0 {
+            // This step reports them: the general path (`update_hot`).
+            self.update_hot();
+        }
         if r.flags & status::EST_DIVERGED != 0 && self.mode == Some(Mode::Dive) {
             self.dive.flags |= status::EST_DIVERGED;
         }
@@ -1400,10 +1407,10 @@ impl<T: SineTable> Controller<T> {
         let mut st = 0u32;
         // Input: out-of-range, non-finite and spiking readings are replaced by the last good
         // tip position, and the estimator waits (see `crate::guard`).
-        let ModeNow { spike, hold, .. } = self.now;
-        let input = self
-            .guard
-            .input_with(spike, hold, d_nm, self.u, self.p.d_max, &BITS);
+        let now = &self.now;
+        let input =
+            self.guard
+                .input_by(|| (now.spike, now.hold), d_nm, self.u, self.p.d_max, &BITS);
         st |= input.flags;
         let d = input.d;
         let input_ok = input.ok;
@@ -1423,7 +1430,7 @@ impl<T: SineTable> Controller<T> {
                 // t ≥ dwell_end, so every later sample of it starts below dwell_end).
                 self.dive.t = self.dive.t.wrapping_add(1);
                 let t = self.dive.t;
-                let u = self.dive_dwell(
+                let u = self.dive_dwell::<true>(
                     t,
                     d,
                     z,
@@ -1456,28 +1463,39 @@ impl<T: SineTable> Controller<T> {
                 self.unfed = self.unfed.wrapping_add(1);
                 self.u
             }
-            Hot::None => match self.mode {
-                Some(Mode::Dive) => {
-                    let check = self.force_check();
-                    let u = self.dive_step(d, z, input_ok, check, &mut st, sink, &mut fed);
-                    if !fed {
-                        self.feed(sink, z, T::ZERO, 0);
+            Hot::None => {
+                let u = match self.mode {
+                    Some(Mode::Dive) => {
+                        let check = self.force_check();
+                        let u = self.dive_step(d, z, input_ok, check, &mut st, sink, &mut fed);
+                        if !fed {
+                            self.feed(sink, z, T::ZERO, 0);
+                        }
+                        u
                     }
-                    u
-                }
-                Some(Mode::Sve) => {
-                    let u = self.sve_step(d, z, input_ok, &mut st, sink, &mut fed);
-                    if !fed {
-                        self.feed(sink, z, T::ZERO, 0);
+                    Some(Mode::Sve) => {
+                        let u = self.sve_step(d, z, input_ok, &mut st, sink, &mut fed);
+                        if !fed {
+                            self.feed(sink, z, T::ZERO, 0);
+                        }
+                        u
                     }
-                    u
+                    // Stopped with a result's bits to report (`update_hot`).
+                    None => {
+                        self.unfed = self.unfed.wrapping_add(1);
+                        self.u
+                    }
+                };
+                // The status bits of the result adopted at this sample, reported once: only
+                // this path sees them (`update_hot`), so the usual ones need no load, OR and
+                // store of `adopted` per sample.
+                if self.adopted != 0 {
+                    st |= self.adopted;
+                    self.adopted = 0;
+                    self.update_hot();
                 }
-                // Unreachable: no mode is `Hot::Stopped` (`update_hot`).
-                None => {
-                    self.unfed = self.unfed.wrapping_add(1);
-                    self.u
-                }
-            },
+                u
+            }
         };
         let (u_code, u, clamped) = self.p.u_dac.quantize(u_next);
         if clamped {
@@ -1490,8 +1508,6 @@ impl<T: SineTable> Controller<T> {
         }
         // The phase and RECORD_READY, kept as they change (`set_phase`, `set_record`).
         st |= self.status_hold;
-        st |= self.adopted;
-        self.adopted = 0;
         StepOut {
             u_m: u * self.p.to_m,
             u_code,
@@ -1642,13 +1658,30 @@ impl<T: SineTable> Controller<T> {
     /// [`Self::feed`] with blocks (`now.last` > 0): the sample to the sink.
     #[inline(always)]
     fn feed_block(&mut self, sink: &mut impl SampleSink<T>, z: T, r: T, flags: u32) -> u32 {
+        self.feed_block_as::<false>(sink, z, r, flags)
+    }
+
+    /// [`Self::feed_block`]; `HOT`: from a usual path, where no result's bits are waiting
+    /// (`update_hot`), so `adopted` is 0 and not read.
+    #[inline(always)]
+    fn feed_block_as<const HOT: bool>(
+        &mut self,
+        sink: &mut impl SampleSink<T>,
+        z: T,
+        r: T,
+        flags: u32,
+    ) -> u32 {
         sink.push(Sample {
             z,
             u: self.u,
             r,
             flags,
         });
-        status::ESTIMATING | self.adopted
+        if HOT {
+            status::ESTIMATING
+        } else {
+            status::ESTIMATING | self.adopted
+        }
     }
 
     /// The lowered base during an approach; `None` when the travel limit is reached.
@@ -1735,7 +1768,9 @@ impl<T: SineTable> Controller<T> {
                     }
                 }
             }
-            Phase::Dwell => return self.dive_dwell(t, d, z, input_ok, check, st, sink, fed),
+            Phase::Dwell => {
+                return self.dive_dwell::<false>(t, d, z, input_ok, check, st, sink, fed)
+            }
             Phase::Retract => {
                 u += self.p.retract_step;
                 if u >= self.dive.u_safe {
@@ -1753,7 +1788,7 @@ impl<T: SineTable> Controller<T> {
     /// One DIVE dwell sample (`dive_step`'s phase, and the usual path `Hot::DiveDwell`).
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    fn dive_dwell(
+    fn dive_dwell<const HOT: bool>(
         &mut self,
         t: u32,
         d: T,
@@ -1774,13 +1809,14 @@ impl<T: SineTable> Controller<T> {
             // The read-out's steady stretch with blocks (see `DiveState::fast_from`):
             // the path below for a good sample with estimate_from ≤ readout_from < t
             // < ramp_from and `now.last` > 0, its tests known. U is `u_cmd` as it was.
-            let f = self.feed_block(sink, z, self.dive.r, SAMPLE_EST);
+            let f = self.feed_block_as::<HOT>(sink, z, self.dive.r, SAMPLE_EST);
             *fed = true;
             *st |= f | status::READOUT;
             let v = [T::ZERO, T::ZERO, T::ZERO, self.dive.h - z];
             self.dive.acc.add_started::<3>(v);
-            // f is ESTIMATING (in the sums' flags already) and the adopted bits.
-            if self.adopted != 0 {
+            // f is ESTIMATING (in the sums' flags already) and the adopted bits (none on the
+            // usual path, `update_hot`).
+            if !HOT && self.adopted != 0 {
                 self.dive.acc.flags |= self.adopted;
             }
             return u + self.exc.next(&self.p.dive.exc, sink);
@@ -1788,7 +1824,7 @@ impl<T: SineTable> Controller<T> {
         if input_ok && t.wrapping_sub(self.dive.estimate_from) < self.dive.estimate_len {
             // The estimating stretch before the read-out, with blocks (see
             // `DiveState::estimate_len`): the path below with its tests known.
-            *st |= self.feed_block(sink, z, self.dive.r, SAMPLE_EST);
+            *st |= self.feed_block_as::<HOT>(sink, z, self.dive.r, SAMPLE_EST);
             *fed = true;
             return u + self.exc.next(&self.p.dive.exc, sink);
         }
@@ -2124,8 +2160,9 @@ impl<T: SineTable> Controller<T> {
                 } else {
                     SAMPLE_HP
                 };
+                // FAST: the usual path, no adopted bits (`update_hot`).
                 let fe = if FAST {
-                    self.feed_block(sink, z, self.sve.z0, flags)
+                    self.feed_block_as::<true>(sink, z, self.sve.z0, flags)
                 } else {
                     self.feed(sink, z, self.sve.z0, flags)
                 };
@@ -2223,7 +2260,6 @@ impl<T: SineTable> Controller<T> {
         match phase {
             Phase::Settle if t >= self.p.sve.settle_samples => self.begin_line(true),
             Phase::Forward | Phase::Backward => {
-                let forward = self.phase == Phase::Forward;
                 let f = T::from_i32(t as i32) * self.p.sve.inv_half;
                 let x = self.sve.x_from + self.sve.x_span * f;
                 if FAST {
@@ -2248,6 +2284,8 @@ impl<T: SineTable> Controller<T> {
                 read = true;
                 self.sve.x_acc += self.x - self.p.sve.x0;
                 if t >= self.sve.next_boundary {
+                    // Read here, at a pixel's end: not loaded every sample.
+                    let forward = self.phase == Phase::Forward;
                     self.finish_pixel(forward);
                     self.sve.pixel += 1;
                     if self.sve.pixel >= self.p.sve.pixels.get() {

@@ -140,6 +140,21 @@ impl<T: Real> Guard<T> {
         d_max: T,
         flags: &FaultBits,
     ) -> Input<T> {
+        self.input_by(|| (spike, hold), d, u, d_max, flags)
+    }
+
+    /// [`Self::input_with`] with `spike` and `hold` read by `consts` only off the steady path,
+    /// which does not use them (issue 14, round 15: the loop's two loads of them per sample,
+    /// hoisted ahead of the steady path's test, were dead there).
+    #[inline(always)]
+    pub fn input_by(
+        &mut self,
+        consts: impl FnOnce() -> (T, u32),
+        d: T,
+        u: T,
+        d_max: T,
+        flags: &FaultBits,
+    ) -> Input<T> {
         let z = u - d;
         // In range (false for NaN), and not a jump of the tip.
         let in_range = d.abs_lt(d_max);
@@ -163,6 +178,7 @@ impl<T: Real> Guard<T> {
             self.predicted = self.z_good;
             self.steady = false;
         }
+        let (spike, hold) = consts();
         self.predicted += self.velocity;
         let jump = z - self.predicted;
         let plausible = self.known < 2 || jump.abs_lt(self.reach);
