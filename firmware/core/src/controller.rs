@@ -498,6 +498,14 @@ impl<T: crate::Real> Accumulator<T> {
         self.pending += 1;
     }
 
+    /// [`Self::add_started`] without counting the sample (its caller counts it).
+    #[inline(always)]
+    fn add_uncounted<const L: usize>(&mut self, v: [T; 4]) {
+        for i in L.min(4)..4 {
+            self.sum[i] += v[i] - self.base[i];
+        }
+    }
+
     /// Samples added.
     #[inline(always)]
     fn count(&self) -> u32 {
@@ -562,6 +570,12 @@ struct DiveState<T> {
     /// start; empty (`fast_len` 0) until the read-out's first sample and with blocks of one.
     fast_from: u32,
     fast_len: u32,
+    /// The stretch's samples taken by the fast path are not counted there (issue 14, round
+    /// 15: one load, add and store per sample less): they are the clocks after this one up
+    /// to the next sample that is not (which counts them, [`Controller::dive_fold_in`]) or
+    /// up to the clock when the sums are read between two samples
+    /// ([`Controller::dive_fold_between`]). Read only while `fast_len` > 0.
+    fast_mark: u32,
     /// `readout_from − estimate_from` with blocks, 0 with blocks of one: the estimating
     /// stretch before the read-out, `estimate_from ≤ t < readout_from` (≤ `ramp_from`), where
     /// a good sample estimates only, tested as one comparison.
@@ -899,6 +913,7 @@ impl<T: SineTable> Controller<T> {
             readout_from: 0,
             fast_from: 0,
             fast_len: 0,
+            fast_mark: 0,
             estimate_len: 0,
             u_cmd: u,
             u_safe: u,
@@ -1322,6 +1337,31 @@ impl<T: SineTable> Controller<T> {
         }
     }
 
+    /// The DIVE read-out's fast-path samples up to sample `t − 1` into the sums' count, from
+    /// within sample `t`, which is not one of them (`DiveState::fast_mark`); again within
+    /// the same sample, nothing.
+    #[inline(always)]
+    fn dive_fold_in(&mut self, t: u32) {
+        let s = &mut self.dive;
+        if s.fast_len != 0 && s.fast_mark != t {
+            s.acc.pending = s
+                .acc
+                .pending
+                .wrapping_add(t.wrapping_sub(1).wrapping_sub(s.fast_mark));
+            s.fast_mark = t;
+        }
+    }
+
+    /// [`Self::dive_fold_in`] between two samples: those up to the last one (`dive.t`).
+    #[inline(always)]
+    fn dive_fold_between(&mut self) {
+        let s = &mut self.dive;
+        if s.fast_len != 0 {
+            s.acc.pending = s.acc.pending.wrapping_add(s.t.wrapping_sub(s.fast_mark));
+            s.fast_mark = s.t;
+        }
+    }
+
     /// θ̂ as the DIVE read-out averages it: [c, k, 0] (the paper's regressor) or [c, k, k·(h − z₀)].
     #[inline(always)]
     fn dive_theta(&self) -> [T; 3] {
@@ -1343,6 +1383,7 @@ impl<T: SineTable> Controller<T> {
     /// The read-out sums take their pending samples' θ̂ (before θ̂ changes).
     #[inline(always)]
     fn settle_readouts(&mut self) {
+        self.dive_fold_between();
         let (d, v) = (self.dive_theta(), self.sve_theta());
         self.dive.acc.settle::<3>(d);
         self.sve.acc.settle::<2>(v);
@@ -1813,7 +1854,8 @@ impl<T: SineTable> Controller<T> {
             *fed = true;
             *st |= f | status::READOUT;
             let v = [T::ZERO, T::ZERO, T::ZERO, self.dive.h - z];
-            self.dive.acc.add_started::<3>(v);
+            // Counted by the clock (`DiveState::fast_mark`).
+            self.dive.acc.add_uncounted::<3>(v);
             // f is ESTIMATING (in the sums' flags already) and the adopted bits (none on the
             // usual path, `update_hot`).
             if !HOT && self.adopted != 0 {
@@ -1828,6 +1870,8 @@ impl<T: SineTable> Controller<T> {
             *fed = true;
             return u + self.exc.next(&self.p.dive.exc, sink);
         }
+        // Not a fast-path sample: those before it counted.
+        self.dive_fold_in(t);
         let estimating = input_ok && t >= self.dive.estimate_from;
         let h = self.dive.h;
         // The regressor's reference (`DiveState::r`, fixed for the tap).
@@ -1855,6 +1899,8 @@ impl<T: SineTable> Controller<T> {
                     // (empty from the ramp-out on).
                     self.dive.fast_from = t.wrapping_add(1);
                     self.dive.fast_len = self.dive.ramp_from.saturating_sub(t).saturating_sub(1);
+                    // This sample is counted (`add_held`); the fast path's from the next.
+                    self.dive.fast_mark = t;
                 }
             } else {
                 if f & status::EST_DIVERGED != 0 {
@@ -1963,6 +2009,11 @@ impl<T: SineTable> Controller<T> {
     }
 
     fn finish_tap(&mut self, contact: bool) {
+        // Within a sample that is not the fast path's (every caller): the fast path's
+        // samples before it counted, and none after it (the stretch closed).
+        let t = self.dive.t;
+        self.dive_fold_in(t);
+        self.dive.fast_len = 0;
         let p = self.p.dive;
         let th = self.dive_theta();
         let s = &mut self.dive;
