@@ -489,16 +489,8 @@ impl<T: crate::Real> Accumulator<T> {
     }
 
     /// [`Self::add_held`] once samples have been added (the base set) and `flags` are in
-    /// the sums' flags already.
-    #[inline(always)]
-    fn add_started<const L: usize>(&mut self, v: [T; 4]) {
-        for i in L.min(4)..4 {
-            self.sum[i] += v[i] - self.base[i];
-        }
-        self.pending += 1;
-    }
-
-    /// [`Self::add_started`] without counting the sample (its caller counts it).
+    /// the sums' flags already, without counting the sample: the fast paths' caller counts
+    /// them by its clock into `pending` (`DiveState::fast_mark`, `SveState::fast_mark`).
     #[inline(always)]
     fn add_uncounted<const L: usize>(&mut self, v: [T; 4]) {
         for i in L.min(4)..4 {
@@ -612,6 +604,11 @@ struct SveState<T> {
     pixel: u32,
     next_boundary: u32,
     acc: Accumulator<T>,
+    /// As `DiveState::fast_mark` (issue 14, round 15): the samples of the pass's fast path
+    /// (`ModeNow::sve_fast`, `Hot::SvePass`) are not counted there; they are the clocks after
+    /// this one, counted by [`Controller::sve_fold`] where the fast path ends or the sums are
+    /// read. Read only while `ModeNow::sve_fast`.
+    fast_mark: u32,
     x_acc: T,
     /// The pass's ramp `x = x_from + x_span·f`, set when it begins: x0 and x1 − x0 forward,
     /// x1 and x0 − x1 backward (the same operands as picking them by direction every sample).
@@ -945,6 +942,7 @@ impl<T: SineTable> Controller<T> {
             pixel: 0,
             next_boundary: 0,
             acc: Accumulator::default(),
+            fast_mark: 0,
             x_acc: T::ZERO,
             x_from: T::ZERO,
             x_span: T::ZERO,
@@ -1222,8 +1220,24 @@ impl<T: SineTable> Controller<T> {
     /// `ModeNow::sve_fast`, and the usual path with it.
     #[inline(always)]
     fn set_sve_fast(&mut self, fast: bool) {
+        if fast {
+            // This sample is counted (`add_held`); the fast path's from the next
+            // (`SveState::fast_mark`). Where it is cleared, the callers have counted them.
+            self.sve.fast_mark = self.sve.t;
+        }
         self.now.sve_fast = fast;
         self.update_hot();
+    }
+
+    /// The SVE pass's fast-path samples through clock `upto` into the sums' count
+    /// (`SveState::fast_mark`), while the fast path is on.
+    #[inline(always)]
+    fn sve_fold(&mut self, upto: u32) {
+        if self.now.sve_fast {
+            let s = &mut self.sve;
+            s.acc.pending = s.acc.pending.wrapping_add(upto.wrapping_sub(s.fast_mark));
+            s.fast_mark = upto;
+        }
     }
 
     /// The usual path from the mode, the phase and `ModeNow::sve_fast`: where any of them
@@ -1266,6 +1280,10 @@ impl<T: SineTable> Controller<T> {
     /// The running mode, and its per-sample constants with it. `between`: called between
     /// two steps (a command), not inside one (before that step hands its sample over).
     fn set_mode(&mut self, mode: Option<Mode>, between: bool) {
+        // `now` is set anew below (`sve_fast` cleared): the pass's fast-path samples so far
+        // counted first (between two samples, or within one off the fast path, which
+        // counted them already).
+        self.sve_fold(self.sve.t);
         let was_blocks = self.now.last > 0;
         self.mode = mode;
         let (gp, dec, check) = match mode {
@@ -1384,6 +1402,7 @@ impl<T: SineTable> Controller<T> {
     #[inline(always)]
     fn settle_readouts(&mut self) {
         self.dive_fold_between();
+        self.sve_fold(self.sve.t);
         let (d, v) = (self.dive_theta(), self.sve_theta());
         self.dive.acc.settle::<3>(d);
         self.sve.acc.settle::<2>(v);
@@ -2084,7 +2103,10 @@ impl<T: SineTable> Controller<T> {
         sink: &mut impl SampleSink<T>,
         fed: &mut bool,
     ) -> T {
+        // Off the fast path: its samples before this one counted, this one not theirs.
+        self.sve_fold(self.sve.t);
         self.sve.t = self.sve.t.saturating_add(1);
+        self.sve.fast_mark = self.sve.t;
         let t = self.sve.t;
         match self.phase {
             Phase::Move => {
@@ -2188,6 +2210,10 @@ impl<T: SineTable> Controller<T> {
             // the clearance.
             self.sve.u_cmd += force / self.p.reg.stiffness + force / k + self.p.clearance;
             self.guard.reprime();
+            if FAST {
+                // The fast path's samples before this one (not added) counted.
+                self.sve_fold(t.wrapping_sub(1));
+            }
             self.sve_lose_surface();
             return self.sve.u_cmd;
         }
@@ -2197,6 +2223,10 @@ impl<T: SineTable> Controller<T> {
             (FAST || self.phase != Phase::Settle) && self.sve.force_slow < self.p.lost_force,
         ) {
             *st |= status::CONTACT_LOST;
+            if FAST {
+                // This sample is added below, uncounted: counted with those before it.
+                self.sve_fold(t);
+            }
             self.sve_lose_surface();
         }
         let mut f = 0;
@@ -2322,7 +2352,8 @@ impl<T: SineTable> Controller<T> {
                     self.set_x_same_y(x);
                 }
                 if FAST {
-                    self.sve.acc.add_started::<2>(v);
+                    // Counted by the clock (`SveState::fast_mark`).
+                    self.sve.acc.add_uncounted::<2>(v);
                     self.sve.acc.flags |= flags;
                 } else if self.now.last > 0 {
                     self.sve.acc.add_held::<2>(v, flags);
@@ -2335,6 +2366,10 @@ impl<T: SineTable> Controller<T> {
                 read = true;
                 self.sve.x_acc += self.x - self.p.sve.x0;
                 if t >= self.sve.next_boundary {
+                    if FAST {
+                        // The pixel's sums are read: this sample and those before it counted.
+                        self.sve_fold(t);
+                    }
                     // Read here, at a pixel's end: not loaded every sample.
                     let forward = self.phase == Phase::Forward;
                     self.finish_pixel(forward);
