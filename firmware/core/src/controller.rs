@@ -2236,11 +2236,9 @@ impl<T: SineTable> Controller<T> {
             true => {
                 // The task's high-passes run every sample, so their state stays
                 // continuous.
-                let flags = if input_ok {
-                    SAMPLE_HP | SAMPLE_EST
-                } else {
-                    SAMPLE_HP
-                };
+                // `SAMPLE_EST` when the input is good, as a product (one OR of the flag's 0
+                // or 1, where the choice took a move, a test and a conditional move).
+                let flags = SAMPLE_HP | SAMPLE_EST * u32::from(input_ok);
                 // FAST: the usual path, no adopted bits (`update_hot`).
                 let fe = if FAST {
                     self.feed_block_as::<true>(sink, z, self.sve.z0, flags)
