@@ -2238,7 +2238,7 @@ impl<T: SineTable> Controller<T> {
                 // continuous.
                 // `SAMPLE_EST` when the input is good, as a product (one OR of the flag's 0
                 // or 1, where the choice took a move, a test and a conditional move).
-                let flags = SAMPLE_HP | SAMPLE_EST * u32::from(input_ok);
+                let flags = SAMPLE_HP | (SAMPLE_EST * u32::from(input_ok));
                 // FAST: the usual path, no adopted bits (`update_hot`).
                 let fe = if FAST {
                     self.feed_block_as::<true>(sink, z, self.sve.z0, flags)
