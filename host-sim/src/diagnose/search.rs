@@ -133,6 +133,30 @@ const LATTICE_OFFSETS: [[f64; 2]; 6] = [
     [0.5, 0.5],
 ];
 
+/// The tip axis's offsets screened besides [`LATTICE_OFFSETS`] where the recording resolves
+/// the resonance and the quarter-cell screen already shows a discrete bed: the irreducible
+/// triangle at steps of an eighth of a cell. Each element engages where the sphere reaches it
+/// (at a depth ≈ ρ²/2R for its distance ρ from the axis), so the engaged count's steps move
+/// with the offset, each seen under the tones, and the screen's brief fit finds the right
+/// lattice only from an offset near it: refsim's clean s16 (a 100 nm bed, the axis at
+/// (0.37, 0.08) of a cell) screened its 100 nm lattice 14th from the quarter-cell points, a
+/// 50 nm one was chosen (1.09× the noise) and adhesion named; from the eighth-cell points the
+/// 100 nm lattice is found (1.00×) and nothing is named. Not everywhere: on a slow force curve
+/// an engagement is only a slight bend of the force law, and the finer search took a real
+/// adhesion's place (refsim's adhesion s3, s6); on the plant's near-continuum beds (pitch
+/// R/20) it let a coarse lattice stand in for part of an effect (stress relaxation on
+/// tap-stiff s8 named after adhesion).
+fn fine_lattice_offsets() -> Vec<[f64; 2]> {
+    const STEPS: usize = 4;
+    let mut out = Vec::with_capacity((STEPS + 1) * (STEPS + 2) / 2);
+    for i in 0..=STEPS {
+        for j in 0..=i {
+            out.push([0.5 * i as f64 / STEPS as f64, 0.5 * j as f64 / STEPS as f64]);
+        }
+    }
+    out
+}
+
 /// A shape point of a candidate's linearised fit: (SSR on the fit samples, shape values,
 /// amplitudes, corrections of the base's parameters).
 type Ranked = (f64, Vec<f64>, Vec<f64>, Vec<f64>);
@@ -1032,7 +1056,8 @@ impl Problem {
     /// nuisance parameters can by chance. Pitches from R/2 to R/6 (finer lattices are the
     /// continuum to within the noise: the force's ripple falls as the number of elements
     /// under the tip grows), six offsets in the lattice cell's irreducible triangle (the
-    /// square lattice's symmetry), each polished briefly from the continuum's optimum; the
+    /// square lattice's symmetry; nine more between them where that screen shows a discrete
+    /// bed, `fine_lattice_offsets`), each polished briefly from the continuum's optimum; the
     /// best two are polished with their offsets refined. It replaces the continuum when its
     /// SSR is lower by more than BIC's ln(n)·σ² per added parameter (pitch and two offsets).
     /// Returns the simulations spent, and the bed the usual search chose where the deeper one
@@ -1049,34 +1074,48 @@ impl Problem {
         let r = self.inst.r_tip;
         let mut evaluations = 0;
         let mut trials: Vec<(f64, Model)> = Vec::new();
-        for div in LATTICE_PITCH_DIVISORS {
-            for offset in LATTICE_OFFSETS {
-                let mut m = best.1.clone();
-                m.nominal.bed = Bed::Lattice {
-                    pitch_nm: r / div,
-                    offset,
-                };
-                // The screen: only what the bed's form moves (the detector offset and the
-                // contacts), a few iterations.
-                let (s, ev) = self.polish_free(
-                    &mut m,
-                    env,
-                    &LmOptions {
-                        max_iterations: 3,
-                        ..LmOptions::default()
-                    },
-                    |slot| {
-                        matches!(
-                            slot,
-                            Slot::Offset | Slot::Height(_) | Slot::Ka(_) | Slot::Ca(_)
-                        )
-                    },
-                );
-                evaluations += ev;
-                if s.is_finite() {
-                    trials.push((s, m));
+        // The screen: only what the bed's form moves (the detector offset and the contacts),
+        // a few iterations, from the continuum's optimum.
+        let mut screen = |offsets: &[[f64; 2]], trials: &mut Vec<(f64, Model)>| {
+            for div in LATTICE_PITCH_DIVISORS {
+                for &offset in offsets {
+                    let mut m = best.1.clone();
+                    m.nominal.bed = Bed::Lattice {
+                        pitch_nm: r / div,
+                        offset,
+                    };
+                    let (s, ev) = self.polish_free(
+                        &mut m,
+                        env,
+                        &LmOptions {
+                            max_iterations: 3,
+                            ..LmOptions::default()
+                        },
+                        |slot| {
+                            matches!(
+                                slot,
+                                Slot::Offset | Slot::Height(_) | Slot::Ka(_) | Slot::Ca(_)
+                            )
+                        },
+                    );
+                    evaluations += ev;
+                    if s.is_finite() {
+                        trials.push((s, m));
+                    }
                 }
             }
+        };
+        screen(&LATTICE_OFFSETS, &mut trials);
+        // Where the quarter-cell screen already shows a discrete bed (a lattice beats the
+        // continuum by the replacement margin) and the resonance is resolved, the offsets
+        // between them are screened too ([`fine_lattice_offsets`]).
+        let threshold = self.replace_margin(env);
+        if self.resonance_resolved() && trials.iter().any(|(s, _)| *s < best.0 - threshold) {
+            let finer: Vec<[f64; 2]> = fine_lattice_offsets()
+                .into_iter()
+                .filter(|o| !LATTICE_OFFSETS.contains(o))
+                .collect();
+            screen(&finer, &mut trials);
         }
         trials.sort_by(|a, b| a.0.total_cmp(&b.0));
         // The best two, each polished with its offset refined: the screen's order is only
@@ -1110,7 +1149,6 @@ impl Problem {
             };
             self.contact_misfit(m, env)
         };
-        let threshold = self.replace_margin(env);
         let replaces = |s: f64| s.is_finite() && s < best.0 - threshold;
         // What the usual search chose, should the deeper one replace it: a misfit from an
         // effect also makes the search go deeper, and a lattice found there can stand in for
