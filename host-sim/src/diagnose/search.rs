@@ -133,9 +133,9 @@ const LATTICE_OFFSETS: [[f64; 2]; 6] = [
     [0.5, 0.5],
 ];
 
-/// The tip axis's offsets screened besides [`LATTICE_OFFSETS`] where the recording resolves
-/// the resonance and the quarter-cell screen already shows a discrete bed: the irreducible
-/// triangle at steps of an eighth of a cell. Each element engages where the sphere reaches it
+/// The irreducible triangle at steps of an eighth of a cell (15 offsets, [`LATTICE_OFFSETS`]
+/// among them): the bed search screens the other nine too where the recording resolves the
+/// resonance and the quarter-cell screen already shows a discrete bed. Each element engages where the sphere reaches it
 /// (at a depth ≈ ρ²/2R for its distance ρ from the axis), so the engaged count's steps move
 /// with the offset, each seen under the tones, and the screen's brief fit finds the right
 /// lattice only from an offset near it: refsim's clean s16 (a 100 nm bed, the axis at
@@ -1814,7 +1814,10 @@ pub fn seconds(t_us: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
-    use super::{contact_misfit, in_parallel, misfit_ratio, polished_by_screen};
+    use super::{
+        contact_misfit, fine_lattice_offsets, in_parallel, misfit_ratio, polished_by_screen,
+        LATTICE_OFFSETS,
+    };
     use crate::plant::effects::EffectKind;
     use crate::plant::rng::NormalRng;
 
@@ -1853,6 +1856,22 @@ mod tests {
             polished_by_screen(&kinds, &linear),
             [true, true, true, false, false, false]
         );
+    }
+
+    #[test]
+    fn the_eighth_cell_offsets_hold_the_quarter_cell_ones_in_the_irreducible_triangle() {
+        let fine = fine_lattice_offsets();
+        assert_eq!(fine.len(), 15);
+        for o in &fine {
+            assert!(0.0 <= o[1] && o[1] <= o[0] && o[0] <= 0.5, "{o:?}");
+        }
+        // The bed search screens the difference: every quarter-cell offset must be found
+        // exactly among the eighth-cell ones, or it would be screened twice.
+        for o in LATTICE_OFFSETS {
+            assert!(fine.contains(&o), "{o:?}");
+        }
+        let extra = fine.iter().filter(|o| !LATTICE_OFFSETS.contains(o)).count();
+        assert_eq!(extra, 9);
     }
 
     #[test]
