@@ -7,7 +7,8 @@
 //! 13 is not met yet, so this asserts only what holds: every recording is read and
 //! diagnosed end to end, the magnitudes are as generated (3–10× the noise), the counts are
 //! consistent, the extended model never fits the held-out data worse than the nominal, and
-//! no drag is named (the set conceals none; refsim's DAC force curves once read as one).
+//! no drag is named on a force curve that conceals none (refsim's DAC force curves once read
+//! as one).
 //! The figures are printed (the measured ones are in refsim/README.md with the command).
 
 use visco::diagnose::search::SearchOptions;
@@ -64,13 +65,15 @@ fn refsim_recordings_are_diagnosed_and_scored() {
         }
         assert!(r.noise_m > 0.04e-9 && r.noise_m < 0.25e-9, "{}", r.setup);
         assert!(r.rms_after_m <= r.rms_before_m * 1.0001, "{}", r.setup);
-        // The set conceals no drag. refsim's DAC force curves (a high-Q lever kicked by each
-        // step of a staircase at the sampling rate, ringing past the next sample) were all
-        // named hydrodynamic-drag while the model took them as quasi-static; integrated
-        // with the resonance aliased they are not. (Its surface-attraction tap still is.)
+        // Drag only where it is concealed. refsim's DAC force curves (a high-Q lever kicked
+        // by each step of a staircase at the sampling rate, ringing past the next sample)
+        // were all named hydrodynamic-drag while the model took them as quasi-static;
+        // integrated with the resonance aliased they are not.
         let csv = std::path::Path::new(&dir).join(format!("{}.csv", r.setup));
         let head = std::fs::read_to_string(&csv).unwrap_or_else(|e| panic!("{csv:?}: {e}"));
-        if head.lines().any(|l| l.trim() == "# mode: force-curve") {
+        if head.lines().any(|l| l.trim() == "# mode: force-curve")
+            && r.effect != Some(EffectKind::HydrodynamicDrag)
+        {
             assert!(
                 !r.named.contains(&EffectKind::HydrodynamicDrag),
                 "{}: named {:?}",
@@ -259,6 +262,30 @@ fn refsim_smooth_command_is_followed_between_the_samples() {
     assert!(r.named.is_empty(), "{}: named {:?}", r.setup, r.named);
     assert!(
         misfit < 0.1,
+        "{}: nominal misfit {misfit:.3}× noise",
+        r.setup
+    );
+}
+
+/// refsim's clean seed 4 (`--discrete-only`): a 1 kHz force curve on the paper's bed, a DAC
+/// staircase kicking a lever of Q 123 that rings over two samples. The continuum misfits its
+/// touch by about the noise; a lattice fits 0.97 nm² better on the fit samples, which the
+/// bed's replacement margin, measured on the residual of the unfitted first start (0.45 nm
+/// against the fitted continuum's 0.12 nm), once refused, and the misfit was named nonlinear
+/// stiffness (z 4.3). Asserted: named nothing, and the nominal within half the noise of the
+/// noise-free truth (the continuum was 0.54×; truth-based, a test's number, not a user's).
+#[test]
+#[ignore = "needs refsim recordings: run by `cargo xtask test` (VISCO_REFSIM_CLEAN_CURVE_DIR)"]
+fn refsim_clean_force_curve_takes_a_lattice_and_names_nothing() {
+    let r = diagnose_one("VISCO_REFSIM_CLEAN_CURVE_DIR");
+    let misfit = r.truth_error_before_m / r.noise_m;
+    println!(
+        "{}: nominal against the truth {misfit:.3}× the noise RMS",
+        r.setup
+    );
+    assert!(r.named.is_empty(), "{}: named {:?}", r.setup, r.named);
+    assert!(
+        misfit < 0.5,
         "{}: nominal misfit {misfit:.3}× noise",
         r.setup
     );
