@@ -117,6 +117,23 @@ fn a_tap_on_the_papers_discrete_bed_is_fitted_with_the_lattice_to_the_noise() {
             }
             Bed::Continuum => panic!("the continuum kept on the paper's lattice"),
         }
+        // The report says why, with its figures: the lattice's gain over the continuum above
+        // the margin it had to clear.
+        let why = &diag.search.bed_reason;
+        println!("seed {seed}: bed {why}");
+        assert!(why.starts_with("chosen over the continuum limit"), "{why}");
+        let figure = |after: &str| -> f64 {
+            let tail = &why[why
+                .find(after)
+                .unwrap_or_else(|| panic!("{after:?} in {why}"))
+                + after.len()..];
+            tail.split(' ')
+                .next()
+                .and_then(|x| x.parse().ok())
+                .unwrap_or_else(|| panic!("{why}"))
+        };
+        let (gain, margin) = (figure("fits the fit samples "), figure("above the margin "));
+        assert!(gain > margin && margin > 0.0, "{why}");
         assert!(
             diag.rms_before_m <= 1.05 * noise_rms,
             "held-out RMS {} against the noise's {noise_rms}",

@@ -466,7 +466,7 @@ impl Diagnosis {
                     s.nominal.nominal.input.describe()
                 }
                 .into(),
-                bed: s.nominal.nominal.bed.describe(),
+                bed: format!("{}: {}", s.nominal.nominal.bed.describe(), s.bed_reason),
                 initial_state,
                 calibration,
                 offset_m: (s.nominal.nominal.offset * LENGTH).into(),

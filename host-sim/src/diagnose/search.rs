@@ -298,6 +298,8 @@ pub struct Search {
     pub nominal: Model,
     /// The nominal model's noise model (on its fit residual).
     pub nominal_noise: NoiseModel,
+    /// Why the nominal model's bed is what it is (the lattice search's figures).
+    pub bed_reason: String,
     /// The scales the effects were built with.
     pub env: Env,
     /// Effects chosen, in order, each with its test against the model before it.
@@ -1067,8 +1069,15 @@ impl Problem {
     /// plant's near-continuum beds (R/20) took in part of an effect for 0.13–0.7 nm²
     /// (plastic deformation s2 on tap-stiff, 33 nm, then named nothing).
     fn bed_margin(&self, m: &Model, env: &Env) -> (f64, usize) {
+        let (margin, ev, _) = self.bed_margin_sigma(m, env);
+        (margin, ev)
+    }
+
+    /// [`Problem::bed_margin`] with the σ it used (nm) and where it came from.
+    fn bed_margin_sigma(&self, m: &Model, env: &Env) -> (f64, usize, (f64, &'static str)) {
+        let first = (env.noise_m / LENGTH, "the first start's residual");
         if self.resonance_resolved() {
-            return (self.replace_margin(env), 0);
+            return (self.replace_margin(env), 0, first);
         }
         let sim = self.simulate(m, env, None);
         let r: Vec<f64> = self
@@ -1082,9 +1091,13 @@ impl Problem {
             .collect();
         let sigma = crate::identify::signal::robust_sigma(&r);
         if sigma.is_finite() && sigma > 0.0 {
-            (self.margin_for_sigma(sigma), 1)
+            (
+                self.margin_for_sigma(sigma),
+                1,
+                (sigma, "the fitted continuum's residual"),
+            )
         } else {
-            (self.replace_margin(env), 1)
+            (self.replace_margin(env), 1, first)
         }
     }
 
@@ -1097,19 +1110,25 @@ impl Problem {
     /// bed, `fine_lattice_offsets`), each polished briefly from the continuum's optimum; the
     /// best two are polished with their offsets refined. It replaces the continuum when its
     /// SSR is lower by more than BIC's ln(n)·σ² per added parameter (pitch and two offsets).
-    /// Returns the simulations spent, and the bed the usual search chose where the deeper one
-    /// (below) replaced it.
+    /// Returns the simulations spent, the bed the usual search chose where the deeper one
+    /// (below) replaced it, and why the bed was chosen (for the report, with its figures).
     pub(crate) fn choose_bed(
         &self,
         best: &mut (f64, Model),
         env: &Env,
         progress: &mut impl FnMut(&str),
-    ) -> (usize, Option<Model>) {
+    ) -> (usize, Option<Model>, String) {
         if best.1.nominal.contacts.iter().all(|c| !(c.k_a > 0.0)) {
-            return (0, None);
+            return (
+                0,
+                None,
+                "no contact was fitted, so no lattice was searched".to_string(),
+            );
         }
         let r = self.inst.r_tip;
-        let (threshold, mut evaluations) = self.bed_margin(&best.1, env);
+        let (threshold, mut evaluations, (sigma_nm, sigma_from)) =
+            self.bed_margin_sigma(&best.1, env);
+        let n_fit = self.fit.iter().filter(|&&f| f).count();
         let mut trials: Vec<(f64, Model)> = Vec::new();
         // The screen: only what the bed's form moves (the detector offset and the contacts),
         // a few iterations, from the continuum's optimum.
@@ -1156,7 +1175,9 @@ impl Problem {
         trials.sort_by(|a, b| a.0.total_cmp(&b.0));
         // The best two, each polished with its offset refined: the screen's order is only
         // approximate where pitches give similar forces.
+        let screened = trials.len();
         let rest = trials.split_off(LATTICE_POLISHED.min(trials.len()));
+        let mut polished_count = trials.len();
         let mut polished: Option<(f64, Model)> = None;
         let mut polish = |m: Model, polished: &mut Option<(f64, Model)>| {
             let mut m = m;
@@ -1197,6 +1218,7 @@ impl Problem {
                 "bed: the best fit misfits ({best_ratio:.1}× its RMS far out of contact): \
                  every screened lattice polished"
             ));
+            polished_count += rest.len();
             for (_, m) in rest {
                 polish(m, &mut polished);
             }
@@ -1205,17 +1227,42 @@ impl Problem {
         }
         // The simulation of the misfit's measure.
         evaluations += 1;
+        let search = format!(
+            "{screened} lattices screened (pitches R/2 to R/6, offsets in the cell's \
+             irreducible triangle), {polished_count} polished; the margin is 3·ln n·σ² over \
+             the n = {n_fit} fit samples, σ = {sigma_nm:.3} nm from {sigma_from}"
+        );
         let Some((s, m)) = polished else {
-            return (evaluations, None);
+            return (
+                evaluations,
+                None,
+                format!("kept: no lattice could be fitted; {search}"),
+            );
         };
-        if replaces(s) {
+        let gain = best.0 - s;
+        let why = if replaces(s) {
             progress(&format!("bed: {}", m.nominal.bed.describe()));
             *best = (s, m);
-        }
+            format!(
+                "chosen over the continuum limit: it fits the fit samples {gain:.3} nm² \
+                 better (sum of squares), above the margin {threshold:.3} nm²; {search}"
+            )
+        } else {
+            format!(
+                "kept: the best lattice found ({}) fits the fit samples {} than the \
+                 continuum, below the margin {threshold:.3} nm² a lattice must clear; {search}",
+                m.nominal.bed.describe(),
+                if gain > 0.0 {
+                    format!("{gain:.3} nm² better")
+                } else {
+                    format!("{:.3} nm² worse", -gain)
+                }
+            )
+        };
         let displaced = usual
             .filter(|(_, u)| u.nominal.bed != best.1.nominal.bed)
             .map(|(_, u)| u);
-        (evaluations, displaced)
+        (evaluations, displaced, why)
     }
 
     /// Nominal fit, then forward selection (module docs). `progress` is told each step.
@@ -1301,10 +1348,15 @@ impl Problem {
         // coarse lattice is only a slightly different force law, which stood in for part of
         // a plastic set on a real JPK cell curve (a continuum).
         let mut displaced_bed = None;
+        let mut bed_reason = "quasi-static recording: no lattice was searched (without the \
+                              lever's dynamics a lattice's engagements are only a slight bend \
+                              of the force law, which can stand in for part of an effect)"
+            .to_string();
         if self.inst.dynamic() {
-            let (ev, displaced) = self.choose_bed(&mut input_fits[0], &env0, &mut progress);
+            let (ev, displaced, why) = self.choose_bed(&mut input_fits[0], &env0, &mut progress);
             evaluations += ev;
             displaced_bed = displaced;
+            bed_reason = why;
             // A sampled smooth source is a line or a cubic between the samples, which differ
             // by a fraction of a per cent of the tones. Compared above on the continuum bed,
             // a lattice's misfit at the touch can decide between them: on refsim's clean s1
@@ -1687,6 +1739,7 @@ impl Problem {
         Search {
             nominal,
             nominal_noise,
+            bed_reason,
             env,
             chosen,
             tested,
