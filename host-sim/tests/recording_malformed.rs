@@ -310,6 +310,34 @@ fn truncated_zip_is_refused() {
         .contains("not a zip archive"));
 }
 
+/// A zip of another vendor's exports (AFM Workshop writes a map as a zip of its CSVs) is
+/// named for what it holds, with the way out, not called an incomplete JPK file.
+#[test]
+fn a_zip_of_other_exports_says_what_it_holds() {
+    use std::io::Write;
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("map_16.zip");
+    let mut zw = zip::ZipWriter::new(std::fs::File::create(&p).unwrap());
+    for i in 0..4 {
+        zw.start_file(
+            format!("FD_mapping_{i:02}.csv"),
+            zip::write::SimpleFileOptions::default(),
+        )
+        .unwrap();
+        zw.write_all(b"Force-Distance Curve\n").unwrap();
+    }
+    zw.finish().unwrap();
+    let e = import_err(&p, &tip_only());
+    assert_eq!(e.kind, ErrorKind::Vendor, "{e}");
+    assert!(
+        e.reason.contains("without JPK's header.properties")
+            && e.reason
+                .contains("4 file(s): FD_mapping_00.csv, FD_mapping_01.csv, FD_mapping_02.csv, …"),
+        "{e}"
+    );
+    assert!(e.fix.as_deref().unwrap_or("").contains("unzip"), "{e}");
+}
+
 #[test]
 fn zip_without_header_properties_is_refused() {
     let dir = tempfile::tempdir().unwrap();

@@ -190,7 +190,12 @@ pub fn identify(rec: &Recording, path: &Path, opts: &Options) -> Result<ForceCur
         .collect();
     let z_s = moving_average(&z, 2);
     let dt_max = t.windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max);
-    let lambda = (4.0 * dt_max).max(0.01);
+    // λ of the regression's filters: a few rows at least (the noise), 10 ms at most, and short
+    // enough that their settling 3λ takes at most half of the approach's time in contact (a
+    // JPK QI curve touches for ~1.5 ms of its 28 ms approach): a longer memory weighs the
+    // contact's few rows against the retract's and leaves the fit ill-conditioned.
+    let contact_s = t[approach.end.saturating_sub(1).max(i_zero)] - t[i_zero];
+    let lambda = (4.0 * dt_max).max((contact_s / 6.0).min(0.01));
 
     // The contact height: search the residual between the threshold and twice the distance
     // back to where the deflection left zero.

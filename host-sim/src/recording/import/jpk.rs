@@ -313,13 +313,25 @@ impl JpkArchive {
             curves,
             is_map,
         };
+        let members = archive.member_summary();
         archive.general = archive.properties("header.properties")?.ok_or_else(|| {
-            RecordingError::new(
-                path,
-                ErrorKind::Vendor,
-                "the archive has no header.properties",
-            )
-            .with_fix("this is not a complete JPK file; export it again")
+            // A zip of another vendor's exports (AFM Workshop's maps are zips of its CSVs)
+            // is named for what it holds, not blamed on JPK.
+            let jpk_like = archive.is_map || !archive.curves.is_empty();
+            let (what, fix) = if jpk_like {
+                (
+                    "the archive has no header.properties".to_string(),
+                    "this is not a complete JPK file; export it again".to_string(),
+                )
+            } else {
+                (
+                    format!("a zip archive without JPK's header.properties: it holds {members}"),
+                    "import reads JPK archives; unzip it and import its files one by one \
+                     (AFM Workshop .csv, NT-MDT .txt)"
+                        .to_string(),
+                )
+            };
+            RecordingError::new(path, ErrorKind::Vendor, what).with_fix(fix)
         })?;
         archive.shared = archive.properties("shared-data/header.properties")?;
         if archive.curves.is_empty() {
@@ -406,6 +418,16 @@ impl JpkArchive {
             .in_entry(name));
         }
         Ok(Some(buf))
+    }
+
+    /// "N files: a, b, c, …" of the archive, for an error that says what it holds.
+    fn member_summary(&self) -> String {
+        let names: Vec<&str> = self.zip.file_names().collect();
+        let mut shown: Vec<&str> = names.clone();
+        shown.sort_unstable();
+        let list = shown.iter().take(3).copied().collect::<Vec<_>>().join(", ");
+        let more = if names.len() > 3 { ", …" } else { "" };
+        format!("{} file(s): {list}{more}", names.len())
     }
 
     fn properties(&mut self, name: &str) -> Result<Option<Properties>> {
