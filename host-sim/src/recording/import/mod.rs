@@ -23,9 +23,10 @@
 //! overrides the file's value, with a warning when the two disagree.
 //!
 //! Formats: [`jpk`] (`.jpk-force`, `.jpk-force-map`, `.jpk-qi-data`), [`workshop`] (AFM
-//! Workshop CSV), [`ntmdt`] (NT-MDT Nova text export).
+//! Workshop CSV), [`ntmdt`] (NT-MDT Nova text export), [`igor`] (Asylum Research `.ibw`).
 #![forbid(unsafe_code)]
 
+pub mod igor;
 pub mod jpk;
 pub mod ntmdt;
 pub mod properties;
@@ -64,6 +65,8 @@ pub enum Format {
     AfmWorkshopCsv,
     /// NT-MDT Nova text export (decimal commas).
     NtMdtTxt,
+    /// Asylum Research force curve, an Igor binary wave (version 5).
+    AsylumIbw,
 }
 
 impl Format {
@@ -75,6 +78,7 @@ impl Format {
             Format::JpkQiData => "jpk-qi-data",
             Format::AfmWorkshopCsv => "afm-workshop-csv",
             Format::NtMdtTxt => "ntmdt-txt",
+            Format::AsylumIbw => "asylum-ibw",
         }
     }
 }
@@ -116,6 +120,19 @@ pub fn detect_format(path: &Path) -> Result<Format> {
     if is_zip {
         return Ok(Format::JpkForce);
     }
+    if name.ends_with(".ibw") {
+        if n == 0 {
+            return Err(RecordingError::new(path, ErrorKind::Vendor, "empty file"));
+        }
+        if !igor::is_ibw5(head) {
+            return Err(RecordingError::new(
+                path,
+                ErrorKind::Vendor,
+                "not an Igor binary wave of version 5, so not an Asylum force curve",
+            ));
+        }
+        return Ok(Format::AsylumIbw);
+    }
     if n == 0 {
         return Err(RecordingError::new(path, ErrorKind::Vendor, "empty file").at_line(1));
     }
@@ -135,8 +152,8 @@ pub fn detect_format(path: &Path) -> Result<Format> {
     }
     Err(
         RecordingError::new(path, ErrorKind::Usage, "unknown file format").with_fix(
-            "import reads JPK .jpk-force/.jpk-force-map/.jpk-qi-data, AFM Workshop .csv and \
-         NT-MDT .txt exports",
+            "import reads JPK .jpk-force/.jpk-force-map/.jpk-qi-data, AFM Workshop .csv, \
+         NT-MDT .txt exports and Asylum Research .ibw",
         ),
     )
 }
@@ -168,6 +185,7 @@ impl Import {
                 Inner::Single(Box::new(workshop::import(path, opts, &mut warnings)?))
             }
             Format::NtMdtTxt => Inner::Single(Box::new(ntmdt::import(path, opts, &mut warnings)?)),
+            Format::AsylumIbw => Inner::Single(Box::new(igor::import(path, opts, &mut warnings)?)),
         };
         Ok(Import {
             format,
