@@ -396,17 +396,7 @@ pub fn import(path: &Path, opts: &ImportOptions, warnings: &mut Vec<String>) -> 
     if let Some(v) = note_value(&note, "Version") {
         meta.set("vendor_software", v);
     }
-    meta.set(
-        "spring_constant_source",
-        if k_src == "flag" {
-            "--spring-constant"
-        } else {
-            "file"
-        },
-    );
-    if let Some(kf) = k_file {
-        meta.set("spring_constant_file_n_per_m", num(kf));
-    }
+    super::set_spring_constant_source(&mut meta, k_src, k_file);
     if let Some(s) = note_number(&note, "InvOLS") {
         meta.set("sensitivity_m_per_v", num(s));
     }

@@ -763,17 +763,7 @@ impl JpkArchive {
                 }
             }
         }
-        meta.set(
-            "spring_constant_source",
-            if k_src == "flag" {
-                "--spring-constant"
-            } else {
-                "file"
-            },
-        );
-        if let Some(kf) = k_file {
-            meta.set("spring_constant_file_n_per_m", num(kf));
-        }
+        super::set_spring_constant_source(&mut meta, k_src, k_file);
         meta.set("sensitivity_m_per_v", num(sens));
         meta.set(
             "sensitivity_source",

@@ -333,6 +333,26 @@ pub(crate) fn missing_error(path: &Path, missing: &[&'static Needed]) -> Recordi
     .with_fix(format!("pass {}", flags.join(" ")))
 }
 
+/// `spring_constant_source` (the flag or the file, as [`resolve`] chose) and the file's own
+/// value, `spring_constant_file_n_per_m`, where the file has one.
+pub(crate) fn set_spring_constant_source(
+    meta: &mut crate::recording::Metadata,
+    k_src: &str,
+    k_file: Option<f64>,
+) {
+    meta.set(
+        "spring_constant_source",
+        if k_src == "flag" {
+            "--spring-constant"
+        } else {
+            "file"
+        },
+    );
+    if let Some(kf) = k_file {
+        meta.set("spring_constant_file_n_per_m", num(kf));
+    }
+}
+
 /// Shortest round-trip text of a number, for metadata values.
 pub(crate) fn num(v: f64) -> String {
     let mut s = String::new();

@@ -315,14 +315,7 @@ pub fn import(path: &Path, opts: &ImportOptions, warnings: &mut Vec<String>) -> 
             meta.set(name, num(v * 1e-6));
         }
     }
-    meta.set(
-        "spring_constant_source",
-        if k_src == "flag" {
-            "--spring-constant"
-        } else {
-            "file"
-        },
-    );
+    super::set_spring_constant_source(&mut meta, k_src, None);
     if let Some((s, _)) = sens {
         meta.set("sensitivity_m_per_v", num(s));
     }
