@@ -20,7 +20,7 @@
 //! success), so a failed write leaves no output behind. Numbers are written in Rust's shortest
 //! round-trip notation, so reading a written file gives back bit-identical `f64`s.
 //!
-//! Vendor files (JPK, AFM Workshop, NT-MDT, Asylum Research) become recordings through [`import`].
+//! Vendor files (JPK, AFM Workshop, NT-MDT, Asylum Research, Optics11) become recordings through [`import`].
 #![forbid(unsafe_code)]
 
 mod csv;

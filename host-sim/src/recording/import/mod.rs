@@ -23,9 +23,11 @@
 //! overrides the file's value, with a warning when the two disagree.
 //!
 //! Formats: [`jpk`] (`.jpk-force`, `.jpk-force-map`, `.jpk-qi-data`), [`workshop`] (AFM
-//! Workshop CSV), [`ntmdt`] (NT-MDT Nova text export), [`igor`] (Asylum Research `.ibw`).
+//! Workshop CSV), [`ntmdt`] (NT-MDT Nova text export), [`igor`] (Asylum Research `.ibw`),
+//! [`chiaro`] (Optics11 Chiaro text export).
 #![forbid(unsafe_code)]
 
+pub mod chiaro;
 pub mod igor;
 pub mod jpk;
 pub mod ntmdt;
@@ -67,6 +69,8 @@ pub enum Format {
     NtMdtTxt,
     /// Asylum Research force curve, an Igor binary wave (version 5).
     AsylumIbw,
+    /// Optics11 Chiaro nanoindenter text export.
+    ChiaroTxt,
 }
 
 impl Format {
@@ -79,6 +83,7 @@ impl Format {
             Format::AfmWorkshopCsv => "afm-workshop-csv",
             Format::NtMdtTxt => "ntmdt-txt",
             Format::AsylumIbw => "asylum-ibw",
+            Format::ChiaroTxt => "chiaro-txt",
         }
     }
 }
@@ -147,13 +152,24 @@ pub fn detect_format(path: &Path) -> Result<Format> {
             "this is already a visco recording; there is nothing to import",
         ));
     }
+    if text.starts_with("Date\t") {
+        // A Chiaro export: its table's header comes after some 40 header lines.
+        let mut more = Vec::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(16 << 10).read_to_end(&mut more))
+            .map_err(|e| RecordingError::io(path, "cannot read", &e))?;
+        let more: String = more.iter().map(|b| *b as char).collect();
+        if chiaro::looks_like(&more) {
+            return Ok(Format::ChiaroTxt);
+        }
+    }
     if name.ends_with(".txt") || text.lines().next().is_some_and(|l| l.contains('\t')) {
         return Ok(Format::NtMdtTxt);
     }
     Err(
         RecordingError::new(path, ErrorKind::Usage, "unknown file format").with_fix(
             "import reads JPK .jpk-force/.jpk-force-map/.jpk-qi-data, AFM Workshop .csv, \
-         NT-MDT .txt exports and Asylum Research .ibw",
+         NT-MDT and Optics11 Chiaro .txt exports and Asylum Research .ibw",
         ),
     )
 }
@@ -186,6 +202,9 @@ impl Import {
             }
             Format::NtMdtTxt => Inner::Single(Box::new(ntmdt::import(path, opts, &mut warnings)?)),
             Format::AsylumIbw => Inner::Single(Box::new(igor::import(path, opts, &mut warnings)?)),
+            Format::ChiaroTxt => {
+                Inner::Single(Box::new(chiaro::import(path, opts, &mut warnings)?))
+            }
         };
         Ok(Import {
             format,
