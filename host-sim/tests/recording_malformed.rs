@@ -310,32 +310,81 @@ fn truncated_zip_is_refused() {
         .contains("not a zip archive"));
 }
 
-/// A zip of another vendor's exports (AFM Workshop writes a map as a zip of its CSVs) is
-/// named for what it holds, with the way out, not called an incomplete JPK file.
-#[test]
-fn a_zip_of_other_exports_says_what_it_holds() {
+/// Writes a zip of `members` (name, bytes) at `p`.
+fn write_zip(p: &Path, members: &[(String, Vec<u8>)]) {
     use std::io::Write;
-    let dir = tempfile::tempdir().unwrap();
-    let p = dir.path().join("map_16.zip");
-    let mut zw = zip::ZipWriter::new(std::fs::File::create(&p).unwrap());
-    for i in 0..4 {
-        zw.start_file(
-            format!("FD_mapping_{i:02}.csv"),
-            zip::write::SimpleFileOptions::default(),
-        )
-        .unwrap();
-        zw.write_all(b"Force-Distance Curve\n").unwrap();
+    let mut zw = zip::ZipWriter::new(std::fs::File::create(p).unwrap());
+    for (name, bytes) in members {
+        zw.start_file(name.as_str(), zip::write::SimpleFileOptions::default())
+            .unwrap();
+        zw.write_all(bytes).unwrap();
     }
     zw.finish().unwrap();
+}
+
+/// A zip of another vendor's text exports (Optics11 ships its examples so) is named for what
+/// it holds, with the way out, not called an incomplete JPK file.
+#[test]
+fn a_zip_of_other_exports_says_what_it_holds() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("exports.zip");
+    let members: Vec<(String, Vec<u8>)> = (0..4)
+        .map(|i| {
+            (
+                format!("indentation_{i:02}.txt"),
+                b"Date\t1/1/2025\n".to_vec(),
+            )
+        })
+        .collect();
+    write_zip(&p, &members);
     let e = import_err(&p, &tip_only());
     assert_eq!(e.kind, ErrorKind::Vendor, "{e}");
     assert!(
         e.reason.contains("without JPK's header.properties")
-            && e.reason
-                .contains("4 file(s): FD_mapping_00.csv, FD_mapping_01.csv, FD_mapping_02.csv, …"),
+            && e.reason.contains(
+                "4 file(s): indentation_00.txt, indentation_01.txt, indentation_02.txt, …"
+            ),
         "{e}"
     );
     assert!(e.fix.as_deref().unwrap_or("").contains("unzip"), "{e}");
+}
+
+/// AFM Workshop writes a map as one CSV per point; a zip of them imports as a map, each curve
+/// as its CSV alone would, in the members' name order, and a bad member is named.
+#[test]
+fn an_afm_workshop_zip_imports_as_a_map() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = std::fs::read(real(WORKSHOP)).unwrap();
+    let opts = ImportOptions {
+        spring_constant_n_per_m: Some(0.1),
+        sample_rate_hz: Some(1000.0),
+        ..tip_only()
+    };
+    let single = import_all(&real(WORKSHOP), &opts).unwrap().remove(0).1;
+    let p = dir.path().join("map.zip");
+    let members: Vec<(String, Vec<u8>)> = ["p2.csv", "p0.csv", "p1.csv"]
+        .iter()
+        .map(|n| (n.to_string(), csv.clone()))
+        .collect();
+    write_zip(&p, &members);
+    let all = import_all(&p, &opts).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(all.iter().map(|c| c.0).collect::<Vec<_>>(), [0, 1, 2]);
+    for (i, (_, rec)) in all.iter().enumerate() {
+        assert_eq!(
+            rec.meta.get("archive_entry"),
+            Some(format!("p{i}.csv").as_str())
+        );
+        assert_eq!(rec.meta.get("source_format"), Some("afm-workshop-zip"));
+        assert_eq!(
+            (&rec.t_s, &rec.u_m, &rec.d_m),
+            (&single.t_s, &single.u_m, &single.d_m)
+        );
+    }
+    let mut bad = members.clone();
+    bad[1].1 = b"Force-Distance Curve\nno table\n".to_vec();
+    write_zip(&p, &bad);
+    let e = import_err(&p, &opts);
+    assert_eq!(e.entry.as_deref(), Some("p0.csv"), "{e}");
 }
 
 #[test]

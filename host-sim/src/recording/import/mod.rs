@@ -71,6 +71,8 @@ pub enum Format {
     AsylumIbw,
     /// Optics11 Chiaro nanoindenter text export.
     ChiaroTxt,
+    /// AFM Workshop map: a zip of its force–distance CSVs, one per point.
+    AfmWorkshopZip,
 }
 
 impl Format {
@@ -84,6 +86,7 @@ impl Format {
             Format::NtMdtTxt => "ntmdt-txt",
             Format::AsylumIbw => "asylum-ibw",
             Format::ChiaroTxt => "chiaro-txt",
+            Format::AfmWorkshopZip => "afm-workshop-zip",
         }
     }
 }
@@ -123,6 +126,17 @@ pub fn detect_format(path: &Path) -> Result<Format> {
         return Ok(f);
     }
     if is_zip {
+        // A zip of CSVs is AFM Workshop's map; any other zip is taken for JPK's container
+        // (whose reader says what an archive without its headers holds).
+        let names: Vec<String> = std::fs::File::open(path)
+            .ok()
+            .and_then(|f| zip::ZipArchive::new(f).ok())
+            .map(|z| z.file_names().map(str::to_string).collect())
+            .unwrap_or_default();
+        let names: Vec<&str> = names.iter().map(String::as_str).collect();
+        if workshop::is_csv_zip(&names) {
+            return Ok(Format::AfmWorkshopZip);
+        }
         return Ok(Format::JpkForce);
     }
     if name.ends_with(".ibw") {
@@ -185,6 +199,8 @@ pub struct Import {
 enum Inner {
     Jpk(Box<jpk::JpkArchive>),
     Single(Box<Recording>),
+    /// Curves read whole at opening (a zip of small text exports).
+    Many(Vec<Recording>),
 }
 
 impl Import {
@@ -205,6 +221,7 @@ impl Import {
             Format::ChiaroTxt => {
                 Inner::Single(Box::new(chiaro::import(path, opts, &mut warnings)?))
             }
+            Format::AfmWorkshopZip => Inner::Many(workshop::import_zip(path, opts, &mut warnings)?),
         };
         Ok(Import {
             format,
@@ -223,12 +240,16 @@ impl Import {
         match &self.inner {
             Inner::Jpk(a) => a.curves(),
             Inner::Single(_) => vec![0],
+            Inner::Many(v) => (0..v.len()).collect(),
         }
     }
 
     /// Whether the file holds a map (curves addressed by index) rather than one curve.
     pub fn is_map(&self) -> bool {
-        matches!(self.format, Format::JpkForceMap | Format::JpkQiData)
+        matches!(
+            self.format,
+            Format::JpkForceMap | Format::JpkQiData | Format::AfmWorkshopZip
+        )
     }
 
     /// Reads one curve.
@@ -238,6 +259,20 @@ impl Import {
                 let rec = a.read_curve(curve, &mut self.warnings)?;
                 Ok(rec)
             }
+            Inner::Many(v) => v.get(curve).cloned().ok_or_else(|| {
+                RecordingError::new(
+                    Path::new(
+                        v.first()
+                            .and_then(|r| r.meta.get("source_file"))
+                            .unwrap_or(""),
+                    ),
+                    ErrorKind::Usage,
+                    format!(
+                        "the map holds curves 0–{}, not curve {curve}",
+                        v.len().saturating_sub(1)
+                    ),
+                )
+            }),
             Inner::Single(rec) => {
                 if curve == 0 {
                     Ok((**rec).clone())

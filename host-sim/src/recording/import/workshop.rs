@@ -25,6 +25,9 @@
 //! and `--sensitivity` too for `T-B(V)` files. The sensitivity plays no part for `Force(nN)`
 //! files, whose deflection follows from force and k alone; it is recorded if given.
 //!
+//! A map (`Mode: Mapping`) is written as one CSV per point; a zip of them imports as a map,
+//! its curves in the members' name order ([`import_zip`]; each also carries `archive_entry`).
+//!
 //! Metadata written: `source_file`, `source_format`, `instrument`, `workshop_file_format`,
 //! `date`, `time`, `workshop_mode`, `point`, `position_x_m`, `position_y_m`,
 //! `spring_constant_source`, `sensitivity_m_per_v` (if known), `sample_rate_source`,
@@ -58,6 +61,76 @@ enum Kind {
 /// Parses an AFM Workshop force–distance CSV into a recording.
 pub fn import(path: &Path, opts: &ImportOptions, warnings: &mut Vec<String>) -> Result<Recording> {
     let bytes = read_text_limited(path, MAX_BYTES)?;
+    import_bytes(path, &bytes, opts, warnings)
+}
+
+/// Whether a zip archive's members are all CSV files (an AFM Workshop map), and there are any.
+pub fn is_csv_zip(names: &[&str]) -> bool {
+    !names.is_empty()
+        && names
+            .iter()
+            .all(|n| n.ends_with('/') || n.to_lowercase().ends_with(".csv"))
+}
+
+/// Imports a zip of AFM Workshop CSVs (one per point of a map), in the members' name order.
+/// An error names the member.
+pub fn import_zip(
+    path: &Path,
+    opts: &ImportOptions,
+    warnings: &mut Vec<String>,
+) -> Result<Vec<Recording>> {
+    use std::io::Read;
+    let file =
+        std::fs::File::open(path).map_err(|e| RecordingError::io(path, "cannot open", &e))?;
+    let mut zip = zip::ZipArchive::new(file).map_err(|e| {
+        RecordingError::new(
+            path,
+            ErrorKind::Vendor,
+            format!("not a readable zip archive: {e}"),
+        )
+    })?;
+    let mut names: Vec<String> = zip
+        .file_names()
+        .filter(|n| !n.ends_with('/'))
+        .map(str::to_string)
+        .collect();
+    names.sort_unstable();
+    let mut out = Vec::with_capacity(names.len());
+    for (i, name) in names.iter().enumerate() {
+        let mut bytes = Vec::new();
+        zip.by_name(name)
+            .map_err(|e| RecordingError::new(path, ErrorKind::Vendor, e.to_string()))
+            .and_then(|f| {
+                f.take(MAX_BYTES + 1)
+                    .read_to_end(&mut bytes)
+                    .map_err(|e| RecordingError::io(path, "cannot read", &e))
+            })
+            .map_err(|e| e.in_entry(name.clone()))?;
+        if bytes.len() as u64 > MAX_BYTES {
+            return Err(RecordingError::new(
+                path,
+                ErrorKind::Vendor,
+                format!("member larger than {MAX_BYTES} bytes; not a force curve export"),
+            )
+            .in_entry(name.clone()));
+        }
+        let mut rec =
+            import_bytes(path, &bytes, opts, warnings).map_err(|e| e.in_entry(name.clone()))?;
+        rec.meta.set("source_format", "afm-workshop-zip");
+        rec.meta.set("archive_entry", name);
+        rec.meta.set("curve_index", i.to_string());
+        out.push(rec);
+    }
+    Ok(out)
+}
+
+/// [`import`] of a file's bytes (`path` names it in messages and metadata).
+fn import_bytes(
+    path: &Path,
+    bytes: &[u8],
+    opts: &ImportOptions,
+    warnings: &mut Vec<String>,
+) -> Result<Recording> {
     if bytes.is_empty() {
         return Err(RecordingError::new(path, ErrorKind::Vendor, "empty file").at_line(1));
     }
