@@ -349,6 +349,19 @@ fn a_zip_of_other_exports_says_what_it_holds() {
     assert!(e.fix.as_deref().unwrap_or("").contains("unzip"), "{e}");
 }
 
+/// An HDF5 file is named as such, with the way to a format import reads.
+#[test]
+fn an_hdf5_file_is_named_with_the_way_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("curves.h5");
+    let mut bytes = b"\x89HDF\r\n\x1a\n".to_vec();
+    bytes.extend([0u8; 56]);
+    std::fs::write(&p, bytes).unwrap();
+    let e = import_err(&p, &tip_only());
+    assert!(e.reason.contains("HDF5"), "{e}");
+    assert!(e.fix.as_deref().unwrap_or("").contains(".tab"), "{e}");
+}
+
 /// AFM Workshop writes a map as one CSV per point; a zip of them imports as a map, each curve
 /// as its CSV alone would, in the members' name order, and a bad member is named.
 #[test]

@@ -22,7 +22,7 @@ Effects: nonlinear-stiffness, adhesion, surface-attraction, stress-relaxation,
 hydrodynamic-drag, baseline-tilt, thermal-drift, second-eigenmode, piezo-creep,
 plastic-deformation.
 
-Vendor files (JPK, AFM Workshop, NT-MDT, Asylum .ibw, Optics11 Chiaro) are converted first with `visco import`.
+Vendor files (JPK, AFM Workshop, NT-MDT, Asylum .ibw, Optics11 Chiaro, afmformats .tab) are converted first with `visco import`.
 
 Writes REPORT.json, and next to it (or in --out DIR) <stem>_series.csv, <stem>_overview.png,
 <stem>_effect<i>_<effect>.png per effect found and <stem>_spectrum.png, all or nothing.")]

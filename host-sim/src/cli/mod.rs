@@ -38,7 +38,7 @@ enum Command {
     Sweep(sweep::SweepArgs),
     /// Fault injection on the simulated instrument: boundedness, tip force, flags, recovery.
     Faults(faults::FaultsArgs),
-    /// Convert a vendor force-curve file (JPK, AFM Workshop, NT-MDT, Asylum .ibw, Optics11 Chiaro) into recording CSVs.
+    /// Convert a vendor force-curve file (JPK, AFM Workshop, NT-MDT, Asylum .ibw, Optics11 Chiaro, afmformats .tab) into recording CSVs.
     Import(import::ImportArgs),
     /// Identify a recording's viscoelastic parameters (dive, sve, force-curve) and its fit.
     Identify(identify::IdentifyArgs),

@@ -24,9 +24,11 @@
 //!
 //! Formats: [`jpk`] (`.jpk-force`, `.jpk-force-map`, `.jpk-qi-data`), [`workshop`] (AFM
 //! Workshop CSV), [`ntmdt`] (NT-MDT Nova text export), [`igor`] (Asylum Research `.ibw`),
-//! [`chiaro`] (Optics11 Chiaro text export).
+//! [`chiaro`] (Optics11 Chiaro text export), [`afmformats_tab`] (the afmformats package's
+//! `.tab` export).
 #![forbid(unsafe_code)]
 
+pub mod afmformats_tab;
 pub mod chiaro;
 pub mod igor;
 pub mod jpk;
@@ -73,6 +75,8 @@ pub enum Format {
     ChiaroTxt,
     /// AFM Workshop map: a zip of its force–distance CSVs, one per point.
     AfmWorkshopZip,
+    /// The afmformats Python package's tab-separated export.
+    AfmformatsTab,
 }
 
 impl Format {
@@ -87,6 +91,7 @@ impl Format {
             Format::AsylumIbw => "asylum-ibw",
             Format::ChiaroTxt => "chiaro-txt",
             Format::AfmWorkshopZip => "afm-workshop-zip",
+            Format::AfmformatsTab => "afmformats-tab",
         }
     }
 }
@@ -166,6 +171,20 @@ pub fn detect_format(path: &Path) -> Result<Format> {
             "this is already a visco recording; there is nothing to import",
         ));
     }
+    if head.starts_with(b"\x89HDF\r\n\x1a\n") {
+        return Err(RecordingError::new(
+            path,
+            ErrorKind::Usage,
+            "an HDF5 file, which import does not read",
+        )
+        .with_fix(
+            "if afmformats wrote it, export the curves from afmformats as .tab \
+                     (tab-separated), which import reads",
+        ));
+    }
+    if afmformats_tab::looks_like(&text) {
+        return Ok(Format::AfmformatsTab);
+    }
     if text.starts_with("Date\t") {
         // A Chiaro export: its table's header comes after some 40 header lines.
         let mut more = Vec::new();
@@ -183,7 +202,7 @@ pub fn detect_format(path: &Path) -> Result<Format> {
     Err(
         RecordingError::new(path, ErrorKind::Usage, "unknown file format").with_fix(
             "import reads JPK .jpk-force/.jpk-force-map/.jpk-qi-data, AFM Workshop .csv, \
-         NT-MDT and Optics11 Chiaro .txt exports and Asylum Research .ibw",
+         NT-MDT and Optics11 Chiaro .txt exports, Asylum Research .ibw and afmformats .tab",
         ),
     )
 }
@@ -222,6 +241,9 @@ impl Import {
                 Inner::Single(Box::new(chiaro::import(path, opts, &mut warnings)?))
             }
             Format::AfmWorkshopZip => Inner::Many(workshop::import_zip(path, opts, &mut warnings)?),
+            Format::AfmformatsTab => {
+                Inner::Single(Box::new(afmformats_tab::import(path, opts, &mut warnings)?))
+            }
         };
         Ok(Import {
             format,
