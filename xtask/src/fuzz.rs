@@ -11,13 +11,17 @@ use std::process::Command;
 type Result<T> = std::result::Result<T, String>;
 
 /// The targets (`fuzz/fuzz_targets/*.rs`) and the seed files each starts from (by extension).
-pub const TARGETS: [(&str, &[&str]); 6] = [
+pub const TARGETS: [(&str, &[&str]); 10] = [
     ("recording_csv", &["csv"]),
     ("telemetry_log", &["bin", "log"]),
     ("jpk", &["jpk-force", "jpk-force-map"]),
     ("afm_workshop", &["csv"]),
     ("ntmdt", &["txt"]),
     ("sample_csv", &["csv"]),
+    ("asylum_ibw", &["ibw"]),
+    ("chiaro", &["txt"]),
+    ("afmformats_tab", &["tab"]),
+    ("afm_workshop_zip", &["zip"]),
 ];
 
 fn ensure_cargo_fuzz() -> Result<()> {
@@ -47,6 +51,7 @@ fn seed(target: &str, exts: &[&str], corpus: &Path) -> Result<usize> {
     let dirs = [
         root().join("../shared/data/real"),
         root().join("host-sim/tests/data"),
+        root().join("host-sim/tests/data/afmformats"),
     ];
     let mut n = 0;
     for dir in dirs {
@@ -90,6 +95,28 @@ fn seed(target: &str, exts: &[&str], corpus: &Path) -> Result<usize> {
                 }
             }
         }
+    }
+    // Chiaro's example is committed zipped: a small export of the same layout instead.
+    if target == "chiaro" {
+        let to = corpus.join("seed-chiaro.txt");
+        if !to.exists() {
+            let mut s = String::from(
+                "Date\t12/05/2025\tTime\t11:20:38\tStatus\tOK\r\nX-position (um)\t5314.320\r\n\
+                 k (N/m)\t0.019\r\nTip radius (um)\t27.500\r\nDevice:\tChiaro\r\n\
+                 Time (s)\tLoad (uN)\tIndentation (nm)\tCantilever (nm)\tPiezo (nm)\tAuxiliary\r\n",
+            );
+            for i in 0..40i32 {
+                let p = 100.0 * f64::from(20 - (20 - i).abs());
+                s += &format!(
+                    "{:.6}\t{:.6}\t0\t{:.3}\t{p:.3}\t0\r\n",
+                    1e-3 * f64::from(i),
+                    1e-4 * p,
+                    5e-3 * p
+                );
+            }
+            std::fs::write(&to, s).map_err(|e| format!("{}: {e}", to.display()))?;
+        }
+        n += 1;
     }
     eprintln!("{target}: {n} seed files");
     Ok(n)
