@@ -216,6 +216,48 @@ fn line_and_scatter_figures_decode() {
     assert!(!bad.exists());
 }
 
+/// A long title (identify's and diagnose's name the file and the findings) is set smaller and
+/// kept inside the canvas: it was centred on the panels and cut at both edges.
+#[test]
+fn a_long_title_stays_inside_the_figure() {
+    let dir = tempfile::tempdir().unwrap();
+    let xs: Vec<f64> = (0..100).map(|i| i as f64).collect();
+    let title = "fmt-jpk-cc-pr14-brain-2021-0.csv: left out: adhesion, thermal-drift, \
+                 nonlinear-stiffness; yet the held-out RMS is 116.60× the noise";
+    let plot = LinePlot {
+        title: Some(title.into()),
+        x: Quantity::new("t", "s"),
+        panels: vec![LinePanel {
+            y: Quantity::new("D", "m"),
+            series: vec![Series::line(
+                "D",
+                xs.iter().map(|&x| (x, 1e-9 * x)).collect(),
+            )],
+            ..Default::default()
+        }],
+        width: 600,
+        panel_height: 150,
+        ..Default::default()
+    };
+    let p = dir.path().join("long.png");
+    figure::lines(&p, &plot).unwrap();
+    let img = decode_png(&p);
+    // The title's band: the rows above the panel's frame.
+    let band = 0..40u32;
+    let dark = |x: u32| {
+        band.clone()
+            .any(|y| img.pixel(x, y).iter().all(|&v| v < 128))
+    };
+    assert!((0..img.width).any(dark), "the title is drawn");
+    for x in (0..4).chain(img.width - 4..img.width) {
+        assert!(
+            !dark(x),
+            "column {x} of {}: the title reaches the edge",
+            img.width
+        );
+    }
+}
+
 #[test]
 fn bad_paths_and_empty_inputs_name_the_path_and_leave_no_file() {
     let dir = tempfile::tempdir().unwrap();

@@ -3,7 +3,8 @@
 The same Rust code as the ``visco`` command (not a second implementation):
 
 - :func:`read` / :func:`read_all`: a recording CSV or a vendor file (JPK .jpk-force,
-  .jpk-force-map, .jpk-qi-data; AFM Workshop .csv; NT-MDT .txt) -> :class:`Recording`.
+  .jpk-force-map, .jpk-qi-data; AFM Workshop .csv and zipped maps; NT-MDT .txt; Asylum
+  Research .ibw; Optics11 Chiaro .txt; afmformats .tab) -> :class:`Recording`.
 - :meth:`Recording.from_arrays`: data that came from elsewhere (e.g. afmformats).
 - :func:`identify`: the viscoelastic parameters and the fit (``visco identify``'s report).
 - :func:`diagnose`: the physics the nominal model left out, named and modelled
@@ -352,8 +353,9 @@ def read(
 ) -> Recording:
     """Reads a recording CSV, or imports a vendor file as ``visco import`` does.
 
-    Vendor formats: JPK .jpk-force, .jpk-force-map, .jpk-qi-data; AFM Workshop .csv;
-    NT-MDT .txt. The result is a ``force-curve`` recording: ``u_m`` the base position (m,
+    Vendor formats: JPK .jpk-force, .jpk-force-map, .jpk-qi-data; AFM Workshop .csv (and
+    its maps, zipped); NT-MDT .txt; Asylum Research .ibw; Optics11 Chiaro .txt; afmformats
+    .tab. The result is a ``force-curve`` recording: ``u_m`` the base position (m,
     z up), ``d_m`` the deflection (m), ``t_s`` from the vendor's rates (s), plus ``segment``
     and, where the file has one, ``force_vendor_n`` (N, vendor sign: positive = repulsive).
 

@@ -138,6 +138,40 @@ fn tick_len(scale: f64) -> f64 {
     5.0 * scale
 }
 
+/// The style and lines of a title within `avail` px: its own size if it fits, else smaller
+/// down to 60 %, else at 60 % broken at spaces into as many lines as it takes.
+fn fit_title(title: &str, style: TextStyle, avail: f64) -> (TextStyle, Vec<String>) {
+    let w = style.width(title);
+    if w <= avail {
+        return (style, vec![title.to_string()]);
+    }
+    let small = TextStyle {
+        size: (style.size * (avail / w) as f32).max(0.6 * style.size),
+        ..style
+    };
+    if small.width(title) <= avail {
+        return (small, vec![title.to_string()]);
+    }
+    let mut lines: Vec<String> = Vec::new();
+    let mut line = String::new();
+    for word in title.split(' ') {
+        let candidate = if line.is_empty() {
+            word.to_string()
+        } else {
+            format!("{line} {word}")
+        };
+        if !line.is_empty() && small.width(&candidate) > avail {
+            lines.push(std::mem::replace(&mut line, word.to_string()));
+        } else {
+            line = candidate;
+        }
+    }
+    if !line.is_empty() {
+        lines.push(line);
+    }
+    (small, lines)
+}
+
 /// Draws the frame `r`, outward ticks and (where asked) tick labels. Axis titles are drawn by
 /// the caller, who knows where there is room.
 fn draw_frame(c: &mut Canvas, r: Rect, xa: &Axis, ya: &Axis, labels: Labels, f: &Fonts, s: f64) {
@@ -996,29 +1030,37 @@ fn render_lines(plot: &LinePlot, scatter: bool) -> std::result::Result<Canvas, S
     let pw = (plot.width.max(100) as f64 * s).round();
     let ph = (plot.panel_height.max(60) as f64 * s).round();
     let vgap = 14.0 * s;
-    let title_h = if plot.title.is_some() {
-        f.title.line_height() + 10.0 * s
-    } else {
-        0.0
-    };
-    let top = pad + title_h + 4.0 * s;
     let bottom = tl + 3.0 * s + f.tick.line_height() + 6.0 * s + f.axis.line_height() + pad;
     // Room on the right for the last x tick label hanging over the frame.
     let right = pad + max_label_width(&xa.ticks, &f.tick) / 2.0;
     let n = plot.panels.len() as f64;
     let width = (left + pw + right).ceil();
+    // A long title (a file name, the findings) is set smaller to fit the canvas, down to 60 %
+    // of its size, and past that broken into lines at spaces; each line is kept inside the
+    // canvas, centred on the panels where it fits there.
+    let (title_style, title_lines) = match &plot.title {
+        Some(t) => fit_title(t, f.title, width - 2.0 * pad),
+        None => (f.title, Vec::new()),
+    };
+    let title_h = if title_lines.is_empty() {
+        0.0
+    } else {
+        title_lines.len() as f64 * title_style.line_height() + 10.0 * s
+    };
+    let top = pad + title_h + 4.0 * s;
     let height = (top + n * ph + (n - 1.0) * vgap + bottom).ceil();
     let mut c = Canvas::new(width as u32, height as u32, WHITE);
-    if let Some(t) = &plot.title {
-        c.text(
-            t,
-            left + pw / 2.0,
-            pad,
-            f.title,
-            HAlign::Center,
-            VAlign::Top,
-            false,
-        );
+    for (i, line) in title_lines.iter().enumerate() {
+        let half = title_style.width(line) / 2.0;
+        let (lo, hi) = (pad + half, width - pad - half);
+        // f64::clamp panics on lo > hi: a word wider than the canvas is centred on it.
+        let cx = if lo <= hi {
+            (left + pw / 2.0).clamp(lo, hi)
+        } else {
+            width / 2.0
+        };
+        let y = pad + i as f64 * title_style.line_height();
+        c.text(line, cx, y, title_style, HAlign::Center, VAlign::Top, false);
     }
     let x0 = left.round();
     for (k, (p, ya)) in plot.panels.iter().zip(&yaxes).enumerate() {
