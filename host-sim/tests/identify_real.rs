@@ -633,3 +633,28 @@ fn an_interference_wave_is_modelled_and_moves_nothing() {
         }
     }
 }
+
+/// A spring constant far too small for a Force(nN) file (here 10⁻⁶ N/m: the file's forces are
+/// pN) makes the lever bend further than its base travels, which no sample allows: the refusal
+/// says so and names the value and its source (AFM Workshop's 2020 test curve, given 0.1 N/m,
+/// spanned 8× its travel).
+#[test]
+fn a_deflection_wider_than_the_travel_names_the_spring_constant() {
+    let mut opts = options_for(WORKSHOP);
+    opts.spring_constant_n_per_m = Some(1e-6);
+    let (_, rec) = import_all(&real(WORKSHOP), &opts).unwrap().remove(0);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("soft-k.csv");
+    rec.write(&path).unwrap();
+    let e = match identify(&path, &Options::new(dir.path().join("soft-k.json"))) {
+        Ok(_) => panic!("identified with k = 1e-6 N/m"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        e.contains("bends at most as far as its base moves")
+            && e.contains("k = 0.000001 N/m, from --spring-constant"),
+        "{e}"
+    );
+    // The file's own scale (k = 0.1 N/m as the table's row) passes the check.
+    assert!(identify_file(WORKSHOP).len() == 1);
+}
