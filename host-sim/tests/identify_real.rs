@@ -655,6 +655,15 @@ fn a_deflection_wider_than_the_travel_names_the_spring_constant() {
             && e.contains("k = 0.000001 N/m, from --spring-constant"),
         "{e}"
     );
+    // diagnose refuses it for the same reason.
+    let e = visco::diagnose::problem::Problem::new(&rec)
+        .err()
+        .expect("diagnose refuses it");
+    assert!(
+        e.to_string()
+            .contains("bends at most as far as its base moves"),
+        "{e}"
+    );
     // The file's own scale (k = 0.1 N/m as the table's row) passes the check.
     assert!(identify_file(WORKSHOP).len() == 1);
 }

@@ -87,6 +87,11 @@ impl Problem {
                 "a diagnosis needs at least 64 samples, the recording has {n}"
             )));
         }
+        if rec.meta.mode == crate::recording::Mode::ForceCurve {
+            if let Some(why) = crate::identify::force_curve::deflection_scale_error(rec) {
+                return Err(ProblemError(why));
+            }
+        }
         let t: Vec<f64> = rec.t_s.iter().map(|v| v / TIME).collect();
         let u: Vec<f64> = rec.u_m.iter().map(|v| v / LENGTH).collect();
         let mut d: Vec<f64> = rec.d_m.iter().map(|v| v / LENGTH).collect();

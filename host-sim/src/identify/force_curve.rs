@@ -159,13 +159,14 @@ impl Dynamics {
 const ASSUMED_F0_HZ: f64 = 1e3;
 const ASSUMED_Q: f64 = 0.5;
 
-/// Refuses an approach on which the deflection spans more than the base travels: pressed on a
-/// sample, a lever bends at most as far as its base moves (a rigid sample: as far), so the
-/// deflection's scale is wrong — the spring constant a force column was divided by, or the
-/// sensitivity a voltage was multiplied by (an AFM Workshop curve given k = 0.1 N/m spanned
-/// 8.9× its travel; the real files span 0.0002–0.08×). The spans are taken between the 1st
-/// and 99th percentiles, so that a spike does not count.
-fn deflection_within_travel(rec: &Recording, path: &Path, approach: &Range<usize>) -> Result<()> {
+/// Why a force curve's deflection has the wrong scale, if its approach spans more than 1.5×
+/// the base's travel: pressed on a sample, a lever bends at most as far as its base moves (a
+/// rigid sample: as far), so the spring constant a force column was divided by, or the
+/// sensitivity a voltage was multiplied by, is wrong (an AFM Workshop curve given
+/// k = 0.1 N/m spanned 8× its travel; the real files span 0.0002–0.08×). Spans between the
+/// 1st and 99th percentiles, so that a spike does not count. identify and diagnose refuse it.
+pub fn deflection_scale_error(rec: &Recording) -> Option<String> {
+    let approach = find_approach(rec, Path::new("recording")).ok()?;
     let span = |v: &[f64]| -> f64 {
         let mut s: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
         if s.len() < 2 {
@@ -175,29 +176,21 @@ fn deflection_within_travel(rec: &Recording, path: &Path, approach: &Range<usize
         let at = |q: f64| s[((s.len() - 1) as f64 * q).round() as usize];
         at(0.99) - at(0.01)
     };
-    let (du, dd) = (
-        span(&rec.u_m[approach.clone()]),
-        span(&rec.d_m[approach.clone()]),
-    );
-    if dd > 1.5 * du {
+    let (du, dd) = (span(&rec.u_m[approach.clone()]), span(&rec.d_m[approach]));
+    (dd > 1.5 * du).then(|| {
         let k = rec.meta.cantilever_k_n_per_m;
         let k_from = rec
             .meta
             .get("spring_constant_source")
             .unwrap_or("the recording");
-        return Err(IdentifyError::new(
-            path,
-            format!(
-                "on the approach the deflection spans {dd:.3e} m while the base travels \
-                 {du:.3e} m ({:.1}×): pressed on a sample a lever bends at most as far as its \
-                 base moves, so the deflection's scale is wrong — check the spring constant \
-                 (k = {k} N/m, from {k_from}) where the file gives a force, or the \
-                 sensitivity where it gives a voltage",
-                dd / du.max(1e-300)
-            ),
-        ));
-    }
-    Ok(())
+        format!(
+            "on the approach the deflection spans {dd:.3e} m while the base travels {du:.3e} m \
+             ({:.1}×): pressed on a sample a lever bends at most as far as its base moves, so \
+             the deflection's scale is wrong — check the spring constant (k = {k} N/m, from \
+             {k_from}) where the file gives a force, or the sensitivity where it gives a voltage",
+            dd / du.max(1e-300)
+        )
+    })
 }
 
 /// Identifies a force curve held in memory.
@@ -209,7 +202,9 @@ pub fn identify(rec: &Recording, path: &Path, opts: &Options) -> Result<ForceCur
             format!("a force curve needs at least 20 samples, the recording has {n}"),
         ));
     }
-    deflection_within_travel(rec, path, &find_approach(rec, path)?)?;
+    if let Some(why) = deflection_scale_error(rec) {
+        return Err(IdentifyError::new(path, why));
+    }
     let k_cant = rec.meta.cantilever_k_n_per_m;
     let r = rec.meta.tip_radius_m;
     let t = &rec.t_s;
