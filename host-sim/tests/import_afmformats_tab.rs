@@ -51,6 +51,15 @@ fn afmformats_tab_export_imports_with_its_metadata_and_identifies() {
     assert!(rec.u_m[turn] < rec.u_m[0] - 1e-6);
     let free = rec.d_m[..500].iter().sum::<f64>() / 500.0;
     assert!(rec.d_m[turn] < free - 1e-7, "pushed up at the turn");
+    // A flag's k is the recording's; the deflection stays the force over the file's k, with
+    // which the force was computed.
+    let flagged = ImportOptions {
+        spring_constant_n_per_m: Some(0.05),
+        ..opts
+    };
+    let other = import_all(&path, &flagged).unwrap().remove(0).1;
+    assert_eq!(other.meta.cantilever_k_n_per_m, 0.05);
+    assert_eq!(other.d_m, rec.d_m);
     let dir = tempfile::tempdir().unwrap();
     let csv = dir.path().join("tab.csv");
     rec.write(&csv).unwrap();

@@ -177,6 +177,14 @@ fn broken_waves_are_refused_with_the_reason() {
     v2[0] = 2;
     let e = refused("v2.ibw", &v2);
     assert!(e.reason.contains("version 5"), "{e}");
+    // Dimensions whose byte count overflows (type 4, 2³¹−2 × 2³⁰+1 points): refused, no
+    // overflow (debug builds check it).
+    let mut huge = bytes[..384].to_vec();
+    huge[64 + 16..64 + 18].copy_from_slice(&4i16.to_le_bytes());
+    huge[64 + 68..64 + 72].copy_from_slice(&2_147_483_646i32.to_le_bytes());
+    huge[64 + 72..64 + 76].copy_from_slice(&1_073_741_825i32.to_le_bytes());
+    let e = refused("huge.ibw", &huge);
+    assert_eq!(e.kind, ErrorKind::Vendor, "{e}");
     let e = refused("empty.ibw", &[]);
     assert!(e.reason.contains("empty"), "{e}");
     // No spring constant in the note and none given: the flag is named.

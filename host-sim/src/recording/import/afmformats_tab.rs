@@ -10,7 +10,8 @@
 //! its line end, the first row glued to it (`…\ttime-6.77e-10\t…`): the names are split from
 //! the values they run into.
 //!
-//! U = height (measured) (the piezo's where there is none), D = −force/k, the force kept as
+//! U = height (measured) (the piezo's where there is none), D = −force/k (the file's k, with
+//! which the force was computed, also where `--spring-constant` overrides it), the force kept as
 //! `force_vendor_n`. The tip radius is not in the metadata: `--tip-radius`.
 //!
 //! Metadata written: `source_file`, `source_format`, `instrument`, `vendor_software`,
@@ -220,7 +221,10 @@ pub fn import(path: &Path, opts: &ImportOptions, warnings: &mut Vec<String>) -> 
     let mut rec = Recording::new(meta.clone());
     rec.t_s = t;
     rec.u_m = rows.iter().map(|(_, v)| v[u_col]).collect();
-    rec.d_m = rows.iter().map(|(_, v)| -v[force_col] / k).collect();
+    // The force was computed with the file's k: the deflection is force over that k, whatever
+    // k a flag gives the recording.
+    let k_force = k_file.unwrap_or(k);
+    rec.d_m = rows.iter().map(|(_, v)| -v[force_col] / k_force).collect();
     let n_ret = seg.iter().filter(|s| **s > 0.5).count();
     rec.extra.push(Column {
         name: "segment".into(),

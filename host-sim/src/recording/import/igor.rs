@@ -199,7 +199,10 @@ pub fn import(path: &Path, opts: &ImportOptions, warnings: &mut Vec<String>) -> 
     let data_len = n_points
         .checked_mul(if wide { 8 } else { 4 })
         .ok_or_else(|| vendor(path, "the wave's size overflows"))?;
-    if wfm < WAVE_HEADER + data_len {
+    if WAVE_HEADER
+        .checked_add(data_len)
+        .is_none_or(|need| wfm < need)
+    {
         return Err(vendor(
             path,
             format!("the binary header's wave size {wfm} is smaller than its {n_points} points"),

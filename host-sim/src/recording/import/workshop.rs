@@ -66,14 +66,20 @@ pub fn import(path: &Path, opts: &ImportOptions, warnings: &mut Vec<String>) -> 
 
 /// Whether a zip archive's members are all CSV files (an AFM Workshop map), and there are any.
 pub fn is_csv_zip(names: &[&str]) -> bool {
-    !names.is_empty()
-        && names
-            .iter()
-            .all(|n| n.ends_with('/') || n.to_lowercase().ends_with(".csv"))
+    let data: Vec<&&str> = names.iter().filter(|n| !zip_extra(n)).collect();
+    !data.is_empty() && data.iter().all(|n| n.to_lowercase().ends_with(".csv"))
 }
 
-/// Imports a zip of AFM Workshop CSVs (one per point of a map), in the members' name order.
-/// An error names the member.
+/// A zip member that is not an export: a folder, or the resource forks macOS's Finder adds
+/// (`__MACOSX/…`, `._name`).
+fn zip_extra(name: &str) -> bool {
+    name.ends_with('/')
+        || name.starts_with("__MACOSX/")
+        || name.rsplit('/').next().is_some_and(|f| f.starts_with("._"))
+}
+
+/// Imports a zip of AFM Workshop CSVs (one per point of a map), in the members' name order,
+/// each read whole (a map's CSVs are tens of kB each). An error names the member.
 pub fn import_zip(
     path: &Path,
     opts: &ImportOptions,
@@ -91,11 +97,12 @@ pub fn import_zip(
     })?;
     let mut names: Vec<String> = zip
         .file_names()
-        .filter(|n| !n.ends_with('/'))
+        .filter(|n| !zip_extra(n))
         .map(str::to_string)
         .collect();
     names.sort_unstable();
     let mut out = Vec::with_capacity(names.len());
+    let (mut own, mut seen) = (Vec::new(), Vec::<String>::new());
     for (i, name) in names.iter().enumerate() {
         let mut bytes = Vec::new();
         zip.by_name(name)
@@ -115,7 +122,15 @@ pub fn import_zip(
             .in_entry(name.clone()));
         }
         let mut rec =
-            import_bytes(path, &bytes, opts, warnings).map_err(|e| e.in_entry(name.clone()))?;
+            import_bytes(path, &bytes, opts, &mut own).map_err(|e| e.in_entry(name.clone()))?;
+        // A warning is said once, naming the first member it came from (a flag that overrides
+        // the files' value would otherwise be said for each of a map's hundreds of points).
+        for w in own.drain(..) {
+            if !seen.contains(&w) {
+                warnings.push(format!("{name}: {w}"));
+                seen.push(w);
+            }
+        }
         rec.meta.set("source_format", "afm-workshop-zip");
         rec.meta.set("archive_entry", name);
         rec.meta.set("curve_index", i.to_string());
