@@ -218,8 +218,8 @@ pub struct Import {
 enum Inner {
     Jpk(Box<jpk::JpkArchive>),
     Single(Box<Recording>),
-    /// Curves read whole at opening (a zip of small text exports).
-    Many(Vec<Recording>),
+    /// A zip of AFM Workshop CSVs, each read when asked for.
+    WorkshopZip(Box<workshop::WorkshopZip>),
 }
 
 impl Import {
@@ -240,7 +240,9 @@ impl Import {
             Format::ChiaroTxt => {
                 Inner::Single(Box::new(chiaro::import(path, opts, &mut warnings)?))
             }
-            Format::AfmWorkshopZip => Inner::Many(workshop::import_zip(path, opts, &mut warnings)?),
+            Format::AfmWorkshopZip => {
+                Inner::WorkshopZip(Box::new(workshop::WorkshopZip::open(path, opts)?))
+            }
             Format::AfmformatsTab => {
                 Inner::Single(Box::new(afmformats_tab::import(path, opts, &mut warnings)?))
             }
@@ -262,7 +264,7 @@ impl Import {
         match &self.inner {
             Inner::Jpk(a) => a.curves(),
             Inner::Single(_) => vec![0],
-            Inner::Many(v) => (0..v.len()).collect(),
+            Inner::WorkshopZip(z) => (0..z.len()).collect(),
         }
     }
 
@@ -281,20 +283,7 @@ impl Import {
                 let rec = a.read_curve(curve, &mut self.warnings)?;
                 Ok(rec)
             }
-            Inner::Many(v) => v.get(curve).cloned().ok_or_else(|| {
-                RecordingError::new(
-                    Path::new(
-                        v.first()
-                            .and_then(|r| r.meta.get("source_file"))
-                            .unwrap_or(""),
-                    ),
-                    ErrorKind::Usage,
-                    format!(
-                        "the map holds curves 0–{}, not curve {curve}",
-                        v.len().saturating_sub(1)
-                    ),
-                )
-            }),
+            Inner::WorkshopZip(z) => z.read(curve, &mut self.warnings),
             Inner::Single(rec) => {
                 if curve == 0 {
                     Ok((**rec).clone())

@@ -78,34 +78,72 @@ fn zip_extra(name: &str) -> bool {
         || name.rsplit('/').next().is_some_and(|f| f.starts_with("._"))
 }
 
-/// Imports a zip of AFM Workshop CSVs (one per point of a map), in the members' name order,
-/// each read whole (a map's CSVs are tens of kB each). An error names the member.
-pub fn import_zip(
-    path: &Path,
-    opts: &ImportOptions,
-    warnings: &mut Vec<String>,
-) -> Result<Vec<Recording>> {
-    use std::io::Read;
-    let file =
-        std::fs::File::open(path).map_err(|e| RecordingError::io(path, "cannot open", &e))?;
-    let mut zip = zip::ZipArchive::new(file).map_err(|e| {
-        RecordingError::new(
-            path,
-            ErrorKind::Vendor,
-            format!("not a readable zip archive: {e}"),
-        )
-    })?;
-    let mut names: Vec<String> = zip
-        .file_names()
-        .filter(|n| !zip_extra(n))
-        .map(str::to_string)
-        .collect();
-    names.sort_unstable();
-    let mut out = Vec::with_capacity(names.len());
-    let (mut own, mut seen) = (Vec::new(), Vec::<String>::new());
-    for (i, name) in names.iter().enumerate() {
+/// An AFM Workshop map zipped: its CSVs (one per point) in the members' name order, each read
+/// when asked for, so that a map never sits in memory whole. An error names the member.
+pub struct WorkshopZip {
+    path: std::path::PathBuf,
+    opts: ImportOptions,
+    zip: zip::ZipArchive<std::fs::File>,
+    names: Vec<String>,
+    /// Warnings said so far (each is said once, naming the first member it came from: a flag
+    /// that overrides the files' value would otherwise be said for each of hundreds of points).
+    seen: Vec<String>,
+}
+
+impl WorkshopZip {
+    /// Opens the archive and lists its CSVs.
+    pub fn open(path: &Path, opts: &ImportOptions) -> Result<Self> {
+        let file =
+            std::fs::File::open(path).map_err(|e| RecordingError::io(path, "cannot open", &e))?;
+        let zip = zip::ZipArchive::new(file).map_err(|e| {
+            RecordingError::new(
+                path,
+                ErrorKind::Vendor,
+                format!("not a readable zip archive: {e}"),
+            )
+        })?;
+        let mut names: Vec<String> = zip
+            .file_names()
+            .filter(|n| !zip_extra(n))
+            .map(str::to_string)
+            .collect();
+        names.sort_unstable();
+        Ok(WorkshopZip {
+            path: path.to_path_buf(),
+            opts: *opts,
+            zip,
+            names,
+            seen: Vec::new(),
+        })
+    }
+
+    /// The number of curves (CSV members).
+    pub fn len(&self) -> usize {
+        self.names.len()
+    }
+
+    /// Whether the archive holds no curve.
+    pub fn is_empty(&self) -> bool {
+        self.names.is_empty()
+    }
+
+    /// Reads curve `i` (the `i`-th member in name order).
+    pub fn read(&mut self, i: usize, warnings: &mut Vec<String>) -> Result<Recording> {
+        use std::io::Read;
+        let path = self.path.as_path();
+        let Some(name) = self.names.get(i).cloned() else {
+            return Err(RecordingError::new(
+                path,
+                ErrorKind::Usage,
+                format!(
+                    "the map holds curves 0–{}, not curve {i}",
+                    self.names.len().saturating_sub(1)
+                ),
+            ));
+        };
         let mut bytes = Vec::new();
-        zip.by_name(name)
+        self.zip
+            .by_name(&name)
             .map_err(|e| RecordingError::new(path, ErrorKind::Vendor, e.to_string()))
             .and_then(|f| {
                 f.take(MAX_BYTES + 1)
@@ -121,22 +159,30 @@ pub fn import_zip(
             )
             .in_entry(name.clone()));
         }
-        let mut rec =
-            import_bytes(path, &bytes, opts, &mut own).map_err(|e| e.in_entry(name.clone()))?;
-        // A warning is said once, naming the first member it came from (a flag that overrides
-        // the files' value would otherwise be said for each of a map's hundreds of points).
-        for w in own.drain(..) {
-            if !seen.contains(&w) {
+        let mut own = Vec::new();
+        let mut rec = import_bytes(path, &bytes, &self.opts, &mut own)
+            .map_err(|e| e.in_entry(name.clone()))?;
+        for w in own {
+            if !self.seen.contains(&w) {
                 warnings.push(format!("{name}: {w}"));
-                seen.push(w);
+                self.seen.push(w);
             }
         }
         rec.meta.set("source_format", "afm-workshop-zip");
-        rec.meta.set("archive_entry", name);
+        rec.meta.set("archive_entry", &name);
         rec.meta.set("curve_index", i.to_string());
-        out.push(rec);
+        Ok(rec)
     }
-    Ok(out)
+}
+
+/// Every curve of a zipped AFM Workshop map ([`WorkshopZip`]), in memory.
+pub fn import_zip(
+    path: &Path,
+    opts: &ImportOptions,
+    warnings: &mut Vec<String>,
+) -> Result<Vec<Recording>> {
+    let mut z = WorkshopZip::open(path, opts)?;
+    (0..z.len()).map(|i| z.read(i, warnings)).collect()
 }
 
 /// [`import`] of a file's bytes (`path` names it in messages and metadata).
