@@ -125,7 +125,7 @@ impl Problem {
                 }
             }
         } else {
-            unit_rows = contact_episodes(&d, dt_us, n);
+            unit_rows = contact_episodes(&d, &u, n);
         }
         for (k, &(a, b)) in unit_rows.iter().enumerate() {
             for x in &mut unit[a..b] {
@@ -391,21 +391,32 @@ fn interference_wave(rec: &Recording) -> Option<crate::identify::force_curve::Ba
 /// Units of a recording without a `tap` column: one per contact episode. The deflection is
 /// smoothed over 1/200 of the recording; an episode is a run where it leaves the free level
 /// (the median of the first tenth) downwards — the bed pushing — by more than a third of its
-/// largest such excursion, and the
-/// recording is cut halfway through the free stretch between two episodes. One episode (a
-/// force curve, one tap) gives one unit.
-fn contact_episodes(d: &[f64], _dt_us: f64, n: usize) -> Vec<(usize, usize)> {
+/// largest such excursion, runs less than 4 smoothing widths apart joined, that reaches half
+/// of that excursion. Only the samples the full window smooths count (at the ends it is
+/// shortened, and a swing of the excitation there read as a touch). Two episodes are cut
+/// where, between them, the base comes closest to where it was in the first tenth (free).
+/// One episode (a force curve, one tap) gives one unit.
+fn contact_episodes(d: &[f64], u: &[f64], n: usize) -> Vec<(usize, usize)> {
     let w = (n / 400).max(2);
+    if n <= 2 * w + 1 {
+        return vec![(0, n)];
+    }
     let ds = moving_average(d, w);
     let head = (n / 10).max(8).min(n);
     let free = median(&ds[..head]);
+    let u_free = median(&u[..head]);
     // The bed pushes the tip up: D below its free level (a pull on the retract is not a touch).
     let dev: Vec<f64> = ds.iter().map(|x| free - x).collect();
-    let peak = dev.iter().copied().fold(0.0f64, f64::max);
+    let interior = w..n - w;
+    let peak = dev[interior.clone()].iter().copied().fold(0.0f64, f64::max);
     if !(peak > 0.0) {
         return vec![(0, n)];
     }
-    let on: Vec<bool> = dev.iter().map(|&x| x > peak / 3.0).collect();
+    let on: Vec<bool> = dev
+        .iter()
+        .enumerate()
+        .map(|(i, &x)| interior.contains(&i) && x > peak / 3.0)
+        .collect();
     let runs = super::noise::runs(&on);
     // Episodes separated by at least 4 smoothing widths of free data.
     let mut episodes: Vec<(usize, usize)> = Vec::new();
@@ -415,12 +426,25 @@ fn contact_episodes(d: &[f64], _dt_us: f64, n: usize) -> Vec<(usize, usize)> {
             _ => episodes.push((a, b)),
         }
     }
+    // A touch of the same recording pushes about as far as the deepest one (the taps go to
+    // one set depth, a curve to one set force); an episode that reaches less than half of
+    // it is the excitation's swing or the ringing after a release, not a touch.
+    episodes.retain(|&(a, b)| dev[a..b].iter().copied().fold(0.0f64, f64::max) >= 0.5 * peak);
     if episodes.len() < 2 {
         return vec![(0, n)];
     }
+    // Not halfway: the retract's viscous pull can bring D back to its free level while the
+    // tip still indents (refsim's nonlinear-stiffness s9, a 12 kHz lever tapped at 11 kHz,
+    // was cut there, mid-retract, and half of its contact fitted as free at 7× the noise);
+    // where the base is back at its free height the tip has left.
     let mut cuts = vec![0];
     for pair in episodes.windows(2) {
-        cuts.push((pair[0].1 + pair[1].0) / 2);
+        let gap = pair[0].1..pair[1].0;
+        let cut = gap
+            .clone()
+            .min_by(|&i, &j| (u[i] - u_free).abs().total_cmp(&(u[j] - u_free).abs()))
+            .unwrap_or(gap.start);
+        cuts.push(cut);
     }
     cuts.push(n);
     cuts.windows(2).map(|c| (c[0], c[1])).collect()
@@ -462,4 +486,73 @@ fn regress_bed(t: &[f64], f: &[f64], z: &[f64], h: f64, r: f64) -> (f64, f64, f6
         sff += f[i] * f[i];
     }
     two_column_nonneg(svv, sva, saa, sfv, sfa, sff)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::contact_episodes;
+
+    /// A tap sampled at 500 kHz (nm): the base U from 80 nm above the surface down to 140
+    /// nm into it and back (touch at 1 200, turn at 5 600, free again at 6 300), a free
+    /// lever swinging at 2.7 kHz, the contact pushing D down by `push`; on the retract the
+    /// viscous pull brings D back to its free level while the tip still indents, and the
+    /// release starts a ring of `ring`. (D, U).
+    fn tap(swing: f64, push: f64, ring: f64) -> (Vec<f64>, Vec<f64>) {
+        let (touch, turn, free) = (1200usize, 5600usize, 6300usize);
+        (0..7000usize)
+            .map(|i| {
+                let tone = (2.0 * std::f64::consts::PI * 2.7e3 * i as f64 / 500e3).sin();
+                let x = i as f64;
+                let u = if i < touch {
+                    80.0 - 80.0 * x / touch as f64
+                } else if i < turn {
+                    -140.0 * (x - touch as f64) / (turn - touch) as f64
+                } else if i < free + 200 {
+                    -140.0 + 220.0 * (x - turn as f64) / (free + 200 - turn) as f64
+                } else {
+                    80.0
+                };
+                let d = if (touch..turn).contains(&i) {
+                    -push * (x - touch as f64) / (turn - touch) as f64
+                } else if i >= free {
+                    (swing + ring * (-((i - free) as f64) / 300.0).exp()) * tone
+                } else if i >= turn {
+                    0.0
+                } else {
+                    swing * tone
+                };
+                (d, u)
+            })
+            .unzip()
+    }
+
+    #[test]
+    fn one_tap_is_cut_only_where_the_base_is_free() {
+        // The ringing after the release crosses a third of the push, not half of it.
+        let (d, u) = tap(1.0, 10.0, 3.5);
+        assert_eq!(contact_episodes(&d, &u, d.len()), vec![(0, d.len())]);
+        // A free swing of 60 % of the push, and a ring beyond half of it, read as touches of
+        // their own; but each cut lies where the base is back at its free height — not
+        // halfway between, where the retract's pull hides that the tip still indents.
+        for (swing, ring) in [(6.0, 0.0), (1.0, 8.0)] {
+            let (d, u) = tap(swing, 10.0, ring);
+            let units = contact_episodes(&d, &u, d.len());
+            assert!(units.len() > 1, "{units:?}");
+            for &(_, b) in &units[..units.len() - 1] {
+                assert!(u[b] > 0.0, "{units:?}: a cut at U = {} nm", u[b]);
+            }
+        }
+    }
+
+    #[test]
+    fn two_taps_of_like_depth_are_two_units() {
+        let (mut d, mut u) = tap(0.5, 10.0, 0.0);
+        let (d2, u2) = tap(0.5, 8.0, 0.0);
+        d.extend(d2);
+        u.extend(u2);
+        let units = contact_episodes(&d, &u, d.len());
+        assert_eq!(units.len(), 2, "{units:?}");
+        // The cut lies in the free stretch between the two contacts.
+        assert!((6300..8200).contains(&units[0].1), "{units:?}");
+    }
 }
