@@ -125,7 +125,7 @@ impl Problem {
                 }
             }
         } else {
-            unit_rows = contact_episodes(&d, &u, n);
+            unit_rows = contact_episodes(&d, &u);
         }
         for (k, &(a, b)) in unit_rows.iter().enumerate() {
             for x in &mut unit[a..b] {
@@ -396,7 +396,8 @@ fn interference_wave(rec: &Recording) -> Option<crate::identify::force_curve::Ba
 /// shortened, and a swing of the excitation there read as a touch). Two episodes are cut
 /// where, between them, the base comes closest to where it was in the first tenth (free).
 /// One episode (a force curve, one tap) gives one unit.
-fn contact_episodes(d: &[f64], u: &[f64], n: usize) -> Vec<(usize, usize)> {
+fn contact_episodes(d: &[f64], u: &[f64]) -> Vec<(usize, usize)> {
+    let n = d.len().min(u.len());
     let w = (n / 400).max(2);
     if n <= 2 * w + 1 {
         return vec![(0, n)];
@@ -530,13 +531,13 @@ mod tests {
     fn one_tap_is_cut_only_where_the_base_is_free() {
         // The ringing after the release crosses a third of the push, not half of it.
         let (d, u) = tap(1.0, 10.0, 3.5);
-        assert_eq!(contact_episodes(&d, &u, d.len()), vec![(0, d.len())]);
+        assert_eq!(contact_episodes(&d, &u), vec![(0, d.len())]);
         // A free swing of 60 % of the push, and a ring beyond half of it, read as touches of
         // their own; but each cut lies where the base is back at its free height — not
         // halfway between, where the retract's pull hides that the tip still indents.
         for (swing, ring) in [(6.0, 0.0), (1.0, 8.0)] {
             let (d, u) = tap(swing, 10.0, ring);
-            let units = contact_episodes(&d, &u, d.len());
+            let units = contact_episodes(&d, &u);
             assert!(units.len() > 1, "{units:?}");
             for &(_, b) in &units[..units.len() - 1] {
                 assert!(u[b] > 0.0, "{units:?}: a cut at U = {} nm", u[b]);
@@ -550,7 +551,7 @@ mod tests {
         let (d2, u2) = tap(0.5, 8.0, 0.0);
         d.extend(d2);
         u.extend(u2);
-        let units = contact_episodes(&d, &u, d.len());
+        let units = contact_episodes(&d, &u);
         assert_eq!(units.len(), 2, "{units:?}");
         // The cut lies in the free stretch between the two contacts.
         assert!((6300..8200).contains(&units[0].1), "{units:?}");
