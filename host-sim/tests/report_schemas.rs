@@ -98,6 +98,33 @@ fn the_concealed_report_matches_its_schema() {
     }
 }
 
+/// The summary's hidden-misfit share (issue 13's goal) counts the effect recordings named right
+/// first, and of those the ones whose misfit against the truth was cut ≥ 2×: not the clean
+/// ones (nothing to cut), not the misnamed ones.
+#[test]
+fn the_hidden_misfit_share_counts_only_effects_named_right_first() {
+    let mut weak = row(Some(EffectKind::Adhesion), vec![EffectKind::Adhesion], None);
+    weak.truth_error_after_m = 1.5e-10; // cut 2e-10 / 1.5e-10 = 1.33×
+    let suite = SuiteReport {
+        rows: vec![
+            row(None, vec![], None),
+            row(Some(EffectKind::Adhesion), vec![EffectKind::Adhesion], None), // cut 4×
+            weak,
+            row(
+                Some(EffectKind::ThermalDrift),
+                vec![EffectKind::Adhesion],
+                None,
+            ),
+        ],
+        seeds: 1,
+        alpha: 0.01,
+    };
+    assert_eq!(suite.hidden_misfit_cut_at_least_2(), (1, 2));
+    let j = suite.to_json();
+    assert_eq!(j.hidden_misfit_cut_at_least_2.cut_at_least_2, 1);
+    assert_eq!(j.hidden_misfit_cut_at_least_2.named_right_first, 2);
+}
+
 /// A real fault run (the force limit: the shortest class) as `visco faults --json` writes it.
 #[test]
 fn the_faults_report_matches_its_schema() {

@@ -146,6 +146,12 @@ fn print_report(report: &SuiteReport, wall_s: f64) {
         report.clean_rms_over_noise(),
         wall_s
     );
+    let (two, right) = report.hidden_misfit_cut_at_least_2();
+    println!(
+        "hidden misfit (model against the noise-free truth) cut ≥ 2× on {two} of the {right} \
+         named right first ({:.1} %)",
+        100.0 * two as f64 / right.max(1) as f64
+    );
     println!("| effect | named first | median cut of the hidden misfit | cut ≥ 2× | median cut over its span |");
     println!("|---|---|---|---|---|");
     for (k, n, right, cut, two, span) in report.per_effect() {
