@@ -307,11 +307,11 @@ impl<T: crate::Real> Dac<T> {
     /// The nearest code (clamped) and its value; `true` when clamped.
     #[inline(always)]
     fn quantize(&self, v: T) -> (i32, T, bool) {
-        let raw = ((v - self.mid) * self.inv_lsb).round_i32();
+        let (raw, r) = ((v - self.mid) * self.inv_lsb).round_code();
         // In range, the usual case: one unsigned comparison instead of the clamp's two and
-        // the clamped test (the same code and flag).
+        // the clamped test (the same code and flag); there `r` is the code's value.
         if (raw.wrapping_sub(self.code_min) as u32) <= self.code_span {
-            return (raw, self.mid + T::from_i32(raw) * self.lsb, false);
+            return (raw, self.mid + r * self.lsb, false);
         }
         let code = if raw > self.code_max {
             self.code_max

@@ -40,6 +40,16 @@ pub trait Real:
     fn from_i32(x: i32) -> Self;
     /// Round half away from zero and saturate to `i32` (NaN gives 0).
     fn round_i32(self) -> i32;
+    /// The nearest integer as a code (saturated to `i32`, NaN gives 0) and as a value of the
+    /// type: a DAC's grid. Inside ±2²² the two are the same integer. Ties: the floats round
+    /// to even (their own rounding, by adding and subtracting 1.5·2^(p−1): two additions,
+    /// where the half away from zero took the sign's ½ by integer operations and the code back
+    /// to a float, issue 14 round 16); the fixed-point types away from zero.
+    #[inline(always)]
+    fn round_code(self) -> (i32, Self) {
+        let c = self.round_i32();
+        (c, Self::from_i32(c))
+    }
     /// False for NaN and ±∞.
     fn is_finite(self) -> bool;
     /// The lowest value (−∞ for the floats).
@@ -110,6 +120,16 @@ impl Real for f32 {
         (self + 0.5f32.copysign(self)) as i32
     }
     #[inline(always)]
+    fn round_code(self) -> (i32, Self) {
+        // |x| < 2²²: x + 1.5·2²³ lies in [2²³, 2²⁴), where the spacing of f32 is 1, so the sum
+        // is x rounded to the nearest integer (ties to even) plus the constant, and the
+        // subtraction is exact. Outside, r stays within a spacing of x, so the code saturates
+        // to the same side; NaN stays NaN (code 0).
+        const M: f32 = 12_582_912.0;
+        let r = (self + M) - M;
+        (r as i32, r)
+    }
+    #[inline(always)]
     fn is_finite(self) -> bool {
         f32::is_finite(self)
     }
@@ -157,6 +177,13 @@ impl Real for f64 {
         (self + 0.5f64.copysign(self)) as i32
     }
     #[inline(always)]
+    fn round_code(self) -> (i32, Self) {
+        // As for f32, with 1.5·2⁵² (|x| < 2⁵¹): the same ties to even.
+        const M: f64 = 6_755_399_441_055_744.0;
+        let r = (self + M) - M;
+        (r as i32, r)
+    }
+    #[inline(always)]
     fn is_finite(self) -> bool {
         f64::is_finite(self)
     }
@@ -175,5 +202,82 @@ impl Real for f64 {
     fn from_rank(r: i64) -> Self {
         let m = r.unsigned_abs() & 0x7FFF_FFFF_FFFF_FFFF;
         f64::from_bits(if r < 0 { m | (1 << 63) } else { m })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Real;
+
+    /// The nearest integer with ties to even, from the value's exact binary expansion (an
+    /// oracle that shares nothing with `round_code`: the integer part by truncation, the
+    /// fraction compared with ½ exactly, f64 holding every f32 exactly).
+    fn nearest_even(x: f64) -> f64 {
+        let t = x.trunc();
+        let frac = (x - t).abs();
+        let away = t + x.signum();
+        if frac > 0.5 || (frac == 0.5 && t % 2.0 != 0.0) {
+            away
+        } else {
+            t
+        }
+    }
+
+    #[test]
+    fn round_code_is_the_nearest_integer_with_ties_to_even() {
+        // Ties, the values next to them (where x + ½ used to round up in f32: 0.49999997),
+        // zeros, and a DAC's range.
+        let below_half = f32::from_bits(0.5f32.to_bits() - 1);
+        let cases: [f32; 12] = [
+            0.5,
+            1.5,
+            2.5,
+            -0.5,
+            -2.5,
+            below_half,
+            -below_half,
+            0.0,
+            -0.0,
+            32767.5,
+            -32768.5,
+            4_194_303.5,
+        ];
+        // A deterministic spread over ±2²² (an LCG), as the DAC grid sees after scaling.
+        let mut s = 0x2545_F491_4F6C_DD1Du64;
+        let spread = (0..100_000).map(|_| {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 40) as f64 / (1u64 << 24) as f64 * 2.0 - 1.0) as f32 * 4_194_303.0
+        });
+        for x in cases.into_iter().chain(spread) {
+            let want = nearest_even(x as f64);
+            let (c, r) = x.round_code();
+            assert_eq!(c as f64, want, "{x}");
+            assert_eq!(r as f64, want, "{x}");
+            // The f64 reference rounds alike.
+            let (c64, r64) = (x as f64).round_code();
+            assert_eq!((c64, r64), (c, want), "{x}");
+        }
+    }
+
+    #[test]
+    fn round_code_saturates_to_the_right_side_outside_its_range() {
+        for (x, side) in [
+            (1e9f32, i32::MAX),
+            (-1e9, i32::MIN),
+            (-12_582_913.0, i32::MIN),
+            (f32::INFINITY, i32::MAX),
+            (f32::NEG_INFINITY, i32::MIN),
+        ] {
+            let (c, _) = x.round_code();
+            // Beyond ±2²² the code is x's integer or saturated: on x's side, beyond any DAC's.
+            assert!(
+                c.signum() == side.signum() && c.unsigned_abs() >= 1 << 22,
+                "{x}: {c}"
+            );
+        }
+        assert_eq!(f32::NAN.round_code().0, 0);
+        assert_eq!(f64::NAN.round_code().0, 0);
     }
 }
