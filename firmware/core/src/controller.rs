@@ -307,11 +307,12 @@ impl<T: crate::Real> Dac<T> {
     /// The nearest code (clamped) and its value; `true` when clamped.
     #[inline(always)]
     fn quantize(&self, v: T) -> (i32, T, bool) {
-        let (raw, r) = ((v - self.mid) * self.inv_lsb).round_code();
+        // Exact: the DAC's bits are at most `T::CODE_BITS_MAX` (`Controller::new`).
+        let raw = ((v - self.mid) * self.inv_lsb).round_code();
         // In range, the usual case: one unsigned comparison instead of the clamp's two and
-        // the clamped test (the same code and flag); there `r` is the code's value.
+        // the clamped test (the same code and flag).
         if (raw.wrapping_sub(self.code_min) as u32) <= self.code_span {
-            return (raw, self.mid + r * self.lsb, false);
+            return (raw, self.mid + T::from_i32(raw) * self.lsb, false);
         }
         let code = if raw > self.code_max {
             self.code_max
@@ -740,6 +741,20 @@ impl<T: SineTable> Controller<T> {
     /// Validate `cfg` and build a controller, idle, with U at the approach start.
     pub fn new(cfg: &Config) -> Result<Self, ConfigError> {
         cfg.validate()?;
+        // The number type rounds onto a DAC's grid exactly up to its `CODE_BITS_MAX` (f32: 22
+        // bits, beyond which its own spacing reaches the code's).
+        for (field, bits) in [
+            ("limits.dac_bits", cfg.limits.dac_bits),
+            ("limits.xy_dac_bits", cfg.limits.xy_dac_bits),
+        ] {
+            if bits > T::CODE_BITS_MAX {
+                return Err(ConfigError {
+                    field,
+                    value: bits as f64,
+                    reason: "too many bits for this build's number type (f32: at most 22)",
+                });
+            }
+        }
         let fs = cfg.sample_rate_hz;
         let t = |v: f64| T::from_f64(v);
         let nm = 1.0 / units::LENGTH;

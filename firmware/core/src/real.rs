@@ -40,16 +40,18 @@ pub trait Real:
     fn from_i32(x: i32) -> Self;
     /// Round half away from zero and saturate to `i32` (NaN gives 0).
     fn round_i32(self) -> i32;
-    /// The nearest integer as a code (saturated to `i32`, NaN gives 0) and as a value of the
-    /// type: a DAC's grid. Inside ±2²² the two are the same integer. Ties: the floats round
-    /// to even (their own rounding, by adding and subtracting 1.5·2^(p−1): two additions,
-    /// where the half away from zero took the sign's ½ by integer operations and the code back
-    /// to a float, issue 14 round 16); the fixed-point types away from zero.
+    /// The nearest integer as a DAC code, saturated to `i32` (NaN gives 0), exact over the
+    /// codes of a DAC of up to [`Self::CODE_BITS_MAX`] bits (f32: |x| < 2²²). Ties: the floats round to even (their own rounding, by
+    /// adding and subtracting 1.5·2^(p−1): two additions, where the half away from zero took
+    /// the sign's ½ by integer operations; issue 14 round 16); the fixed-point types away
+    /// from zero.
     #[inline(always)]
-    fn round_code(self) -> (i32, Self) {
-        let c = self.round_i32();
-        (c, Self::from_i32(c))
+    fn round_code(self) -> i32 {
+        self.round_i32()
     }
+    /// The widest DAC (bits) whose codes [`Self::round_code`] rounds exactly: every code of a
+    /// b-bit DAC and its neighbourhood lie within ±2^(b−1) + 1.
+    const CODE_BITS_MAX: u32 = 24;
     /// False for NaN and ±∞.
     fn is_finite(self) -> bool;
     /// The lowest value (−∞ for the floats).
@@ -120,15 +122,16 @@ impl Real for f32 {
         (self + 0.5f32.copysign(self)) as i32
     }
     #[inline(always)]
-    fn round_code(self) -> (i32, Self) {
+    fn round_code(self) -> i32 {
         // |x| < 2²²: x + 1.5·2²³ lies in [2²³, 2²⁴), where the spacing of f32 is 1, so the sum
         // is x rounded to the nearest integer (ties to even) plus the constant, and the
-        // subtraction is exact. Outside, r stays within a spacing of x, so the code saturates
-        // to the same side; NaN stays NaN (code 0).
+        // subtraction is exact. Outside, the result stays within a spacing of x, so the code
+        // saturates to the same side; NaN gives 0.
         const M: f32 = 12_582_912.0;
-        let r = (self + M) - M;
-        (r as i32, r)
+        ((self + M) - M) as i32
     }
+    /// 2²² bounds the exact range: a 22-bit DAC's codes (±2²¹) with room.
+    const CODE_BITS_MAX: u32 = 22;
     #[inline(always)]
     fn is_finite(self) -> bool {
         f32::is_finite(self)
@@ -177,11 +180,10 @@ impl Real for f64 {
         (self + 0.5f64.copysign(self)) as i32
     }
     #[inline(always)]
-    fn round_code(self) -> (i32, Self) {
-        // As for f32, with 1.5·2⁵² (|x| < 2⁵¹): the same ties to even.
+    fn round_code(self) -> i32 {
+        // As for f32, with 1.5·2⁵² (exact for |x| < 2⁵¹): the same ties to even.
         const M: f64 = 6_755_399_441_055_744.0;
-        let r = (self + M) - M;
-        (r as i32, r)
+        ((self + M) - M) as i32
     }
     #[inline(always)]
     fn is_finite(self) -> bool {
@@ -252,12 +254,10 @@ mod tests {
         });
         for x in cases.into_iter().chain(spread) {
             let want = nearest_even(x as f64);
-            let (c, r) = x.round_code();
+            let c = x.round_code();
             assert_eq!(c as f64, want, "{x}");
-            assert_eq!(r as f64, want, "{x}");
             // The f64 reference rounds alike.
-            let (c64, r64) = (x as f64).round_code();
-            assert_eq!((c64, r64), (c, want), "{x}");
+            assert_eq!((x as f64).round_code(), c, "{x}");
         }
     }
 
@@ -270,14 +270,14 @@ mod tests {
             (f32::INFINITY, i32::MAX),
             (f32::NEG_INFINITY, i32::MIN),
         ] {
-            let (c, _) = x.round_code();
+            let c = x.round_code();
             // Beyond ±2²² the code is x's integer or saturated: on x's side, beyond any DAC's.
             assert!(
                 c.signum() == side.signum() && c.unsigned_abs() >= 1 << 22,
                 "{x}: {c}"
             );
         }
-        assert_eq!(f32::NAN.round_code().0, 0);
-        assert_eq!(f64::NAN.round_code().0, 0);
+        assert_eq!(f32::NAN.round_code(), 0);
+        assert_eq!(f64::NAN.round_code(), 0);
     }
 }

@@ -109,3 +109,23 @@ proptest! {
         }
     }
 }
+
+/// The f32 core rounds onto a DAC's grid exactly up to 22 bits (`Real::CODE_BITS_MAX`): a
+/// wider DAC is refused by name, not driven with codes off by one; the f64 reference and the
+/// fixed-point build take the configuration's full 24.
+#[test]
+fn a_dac_wider_than_the_number_type_rounds_is_refused() {
+    for (u_bits, xy_bits, field) in [(23, 16, "limits.dac_bits"), (16, 24, "limits.xy_dac_bits")] {
+        let mut cfg = Config::paper(500e3);
+        cfg.limits.dac_bits = u_bits;
+        cfg.limits.xy_dac_bits = xy_bits;
+        let e = Controller::<f32>::new(&cfg).err().expect("refused");
+        assert_eq!(e.field, field);
+        assert!(Controller::<f64>::new(&cfg).is_ok());
+        assert!(Controller::<visco_core::fixed::Q32>::new(&cfg).is_ok());
+    }
+    let mut cfg = Config::paper(500e3);
+    cfg.limits.dac_bits = 22;
+    cfg.limits.xy_dac_bits = 22;
+    assert!(Controller::<f32>::new(&cfg).is_ok());
+}
