@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Paired comparison of two `visco faults --seeds N --json F` reports (issue 14, round 9).
 
-    python3 firmware/tools/paired_faults.py OLD.json NEW.json
+    python3 firmware/tools/paired_faults.py OLD.json NEW.json [--null NULL.json]...
     python3 firmware/tools/paired_faults.py --selftest
 
 The runs of a class come in seed order (1..N), so the k-th run of a class in OLD and NEW is
@@ -11,7 +11,13 @@ verdict: "ok" when mean(d) <= 0 or mean(d) <= 2 SE, else "WORSE". A run that is 
 at/over the force limit, or a recovery that is None in NEW but not in OLD, is "UNSAFE"/"WORSE".
 A class whose runs carry `retract_s` (dive-force-limit, issue 14 round 11: the time from the
 contact to the retract on the force limit) is judged on it in place of the recovery.
-Exit status 1 when any verdict is not "ok".
+A difference below the reports' resolution (1e-6 nN or ms, with no spread) counts as none.
+
+With --null (issue 14, round 16): NULL is a run of OLD changed imperceptibly (e.g. a DAC scale
+by one ulp), which moves every row by the chaos of the runs alone. A class that is WORSE
+against OLD is "ok vs nulls" when it is ok against every NULL: NEW moved it no further than
+an imperceptible change of OLD does. UNSAFE stays UNSAFE.
+Exit status 1 when any verdict is neither "ok" nor "ok vs nulls".
 """
 import json
 import math
@@ -26,13 +32,18 @@ def by_class(report):
     return out
 
 
+# The reports' resolution in nN and ms: a mean difference below it, with no spread, is
+# rounding (e.g. a DAC scale changed by 10^-7 moves every force by ~1e-10 nN).
+RESOLUTION = 1e-6
+
+
 def paired(old, new):
     d = [b - a for a, b in zip(old, new)]
     n = len(d)
     m = sum(d) / n
     sd = math.sqrt(sum((x - m) ** 2 for x in d) / (n - 1)) if n > 1 else 0.0
     se = sd / math.sqrt(n)
-    return sum(old) / n, sum(new) / n, m, se, ("ok" if m <= 0 or m <= 2 * se else "WORSE")
+    return sum(old) / n, sum(new) / n, m, se, ("ok" if m <= 2 * se + RESOLUTION else "WORSE")
 
 
 def when(r):
@@ -61,6 +72,21 @@ def compare(old_rep, new_rep):
         ok &= verdict == "ok"
         rows.append((cls, len(olds), unsafe, f, r, len(pairs), lost, verdict))
     return rows, ok
+
+
+def against_nulls(rows, new_rep, nulls):
+    """Rows WORSE against OLD re-judged against each null run (see the module's doc)."""
+    if not nulls:
+        return rows, all(r[7] == "ok" for r in rows)
+    judged = [dict((r[0], r[7]) for r in compare(n, new_rep)[0]) for n in nulls]
+    out, ok = [], True
+    for r in rows:
+        v = r[7]
+        if v == "WORSE" and all(j[r[0]] == "ok" for j in judged):
+            v = "ok vs nulls"
+        ok &= v in ("ok", "ok vs nulls")
+        out.append(r[:7] + (v,))
+    return out, ok
 
 
 def show(rows):
@@ -103,6 +129,19 @@ def selftest():
     rows, ok = compare({"runs": ret(rep("f", [1, 1], [1, 1]), [6, 6])},
                        {"runs": ret(rep("f", [1, 1], [1, 1]), [7, 7])})
     assert not ok and rows[0][7] == "WORSE" and abs(rows[0][4][2] - 1.0) < 1e-9, rows
+    # A difference below the resolution with no spread is none.
+    rows, ok = compare({"runs": rep("g", [1, 2], [1, 1])},
+                       {"runs": rep("g", [1 + 1e-10, 2 + 1e-10], [1, 1])})
+    assert ok, rows
+    # Against nulls: WORSE against OLD, but a null moved it as far: ok vs nulls; a null that
+    # did not move it keeps the verdict.
+    old = {"runs": rep("h", [1, 2, 3, 4], [1, 1, 1, 1])}
+    new = {"runs": rep("h", [1.1, 2.1, 3.1, 4.1], [1, 1, 1, 1])}
+    moved = {"runs": rep("h", [1.1, 2.1, 3.1, 4.1], [1, 1, 1, 1])}
+    rows, ok = against_nulls(compare(old, new)[0], new, [moved])
+    assert ok and rows[0][7] == "ok vs nulls", rows
+    rows, ok = against_nulls(compare(old, new)[0], new, [moved, old])
+    assert not ok and rows[0][7] == "WORSE", rows
     print("selftest ok")
 
 
@@ -110,8 +149,17 @@ if __name__ == "__main__":
     if sys.argv[1:] == ["--selftest"]:
         selftest()
         sys.exit(0)
-    if len(sys.argv) != 3:
+    args = sys.argv[1:]
+    nulls = []
+    while "--null" in args:
+        i = args.index("--null")
+        if i + 1 >= len(args):
+            sys.exit(__doc__)
+        nulls.append(json.load(open(args[i + 1])))
+        del args[i:i + 2]
+    if len(args) != 2:
         sys.exit(__doc__)
-    rows, ok = compare(json.load(open(sys.argv[1])), json.load(open(sys.argv[2])))
+    new_rep = json.load(open(args[1]))
+    rows, ok = against_nulls(compare(json.load(open(args[0])), new_rep)[0], new_rep, nulls)
     show(rows)
     sys.exit(0 if ok else 1)
