@@ -308,7 +308,12 @@ impl<T: crate::Real> Dac<T> {
     #[inline(always)]
     fn quantize(&self, v: T) -> (i32, T, bool) {
         // Exact: the DAC's bits are at most `T::CODE_BITS_MAX` (`Controller::new`).
-        let raw = ((v - self.mid) * self.inv_lsb).round_code();
+        self.at_code(((v - self.mid) * self.inv_lsb).round_code())
+    }
+
+    /// A code (clamped) and its value; `true` when clamped.
+    #[inline(always)]
+    fn at_code(&self, raw: i32) -> (i32, T, bool) {
         // In range, the usual case: one unsigned comparison instead of the clamp's two and
         // the clamped test (the same code and flag).
         if (raw.wrapping_sub(self.code_min) as u32) <= self.code_span {
@@ -323,7 +328,27 @@ impl<T: crate::Real> Dac<T> {
         };
         (code, self.mid + T::from_i32(code) * self.lsb, code != raw)
     }
+
+    /// A ramp from `from` over `span` in `samples` steps as a line of DAC codes in fixed
+    /// point with [`RAMP_FRAC`] fractional bits and ½ added: (at step 0, per step), so that step
+    /// t's nearest code (ties up) is `(q0 + dq·t) >> RAMP_FRAC`, in integers (issue 14, round
+    /// 16: the SVE pass's x formed this way takes an integer multiply-add where the value, its
+    /// offset, its scale and its rounding took ten FPU operations). Formed in f64 once per
+    /// pass. Codes are < 2²¹ (`CODE_BITS_MAX`), so q0 and dq·t (t ≤ `samples`) stay below 2⁶²;
+    /// dq is rounded, so step t is within t·2⁻⁴¹ of a code of the line.
+    fn ramp(&self, from: T, span: T, samples: u32) -> (i64, i64) {
+        const Q: f64 = (1u64 << RAMP_FRAC) as f64;
+        let lsb = self.lsb.to_f64();
+        let c0 = (from.to_f64() - self.mid.to_f64()) / lsb;
+        let dq = span.to_f64() / lsb / samples.max(1) as f64 * Q;
+        // `as` saturates: a NaN or an absurd line is clamped by `at_code` like any code.
+        let dq = if dq < 0.0 { dq - 0.5 } else { dq + 0.5 };
+        (((c0 + 0.5) * Q) as i64, dq as i64)
+    }
 }
+
+/// Fractional bits of [`Dac::ramp`]'s fixed-point codes.
+const RAMP_FRAC: u32 = 40;
 
 #[derive(Clone, Copy, Debug)]
 struct DiveParams<T> {
@@ -358,7 +383,6 @@ struct SveParams<T> {
     y0: T,
     dy: T,
     half_samples: u32,
-    inv_half: T,
     turn_samples: u32,
     inv_turn: T,
     settle_samples: u32,
@@ -611,10 +635,11 @@ struct SveState<T> {
     /// read. Read only while `ModeNow::sve_fast`.
     fast_mark: u32,
     x_acc: T,
-    /// The pass's ramp `x = x_from + x_span·f`, set when it begins: x0 and x1 − x0 forward,
-    /// x1 and x0 − x1 backward (the same operands as picking them by direction every sample).
-    x_from: T,
-    x_span: T,
+    /// The pass's ramp in the lateral DAC's codes ([`Dac::ramp`]), set when it begins: from x0
+    /// to x1 forward, back backward; sample t of the pass is at code
+    /// `(x_q0 + x_dq·t) >> RAMP_FRAC`.
+    x_q0: i64,
+    x_dq: i64,
     /// The surface was lost (or the force limit hit): re-approaching while the scan goes on.
     lost: bool,
     reapproach_from: T,
@@ -654,7 +679,7 @@ pub struct Controller<T> {
     /// The sample's usual path, kept with the mode, the phase and `ModeNow::sve_fast`
     /// ([`Self::update_hot`]): one byte dispatches it where the mode and the phase took two.
     hot: Hot,
-    /// `set_x_same_y` would leave y as it is: y and its code are `y_quantized`'s value and
+    /// `set_x_code_same_y` would leave y as it is: y and its code are `y_quantized`'s value and
     /// code, and quantising that value gives it back. Cleared where y is set (`set_xy`).
     y_settled: bool,
     u: T,
@@ -704,7 +729,7 @@ pub struct Controller<T> {
     dive: DiveState<T>,
     sve: SveState<T>,
     p: Params<T>,
-    /// The last y quantised by `set_x_same_y`: (input, code, value).
+    /// The last y quantised by `set_x_code_same_y`: (input, code, value).
     y_quantized: (T, i32, T),
     record: Option<Record<T>>,
     target: Target,
@@ -882,7 +907,6 @@ impl<T: SineTable> Controller<T> {
                 y0: t(s.y0_m * nm),
                 dy: t(s.dy_m * nm),
                 half_samples: samples(half, fs),
-                inv_half: t(1.0 / samples(half, fs) as f64),
                 turn_samples: samples(s.turn_s, fs),
                 inv_turn: t(1.0 / samples(s.turn_s, fs) as f64),
                 settle_samples: samples(s.settle_s, fs),
@@ -959,8 +983,8 @@ impl<T: SineTable> Controller<T> {
             acc: Accumulator::default(),
             fast_mark: 0,
             x_acc: T::ZERO,
-            x_from: T::ZERO,
-            x_span: T::ZERO,
+            x_q0: 0,
+            x_dq: 0,
             lost: false,
             force_slow: T::ZERO,
             left: false,
@@ -1605,11 +1629,12 @@ impl<T: SineTable> Controller<T> {
         self.y_settled = false;
     }
 
-    /// `set_xy(x, self.y)`, the scan's case, with the y quantisation remembered: it is a
-    /// pure function of its input, and along a line y is the same sample after sample.
+    /// `set_xy` with x given as its DAC code (the pass's ramp), the scan's case, with the y
+    /// quantisation remembered: it is a pure function of its input, and along a line y is the
+    /// same sample after sample.
     #[inline(always)]
-    fn set_x_same_y(&mut self, x: T) {
-        let (xc, xv, _) = self.p.xy_dac.quantize(x);
+    fn set_x_code_same_y(&mut self, x_code: i32) {
+        let (xc, xv, _) = self.p.xy_dac.at_code(x_code);
         self.x = xv;
         self.x_code = xc;
         if self.y_settled {
@@ -2354,15 +2379,19 @@ impl<T: SineTable> Controller<T> {
         match phase {
             Phase::Settle if t >= self.p.sve.settle_samples => self.begin_line(true),
             Phase::Forward | Phase::Backward => {
-                let f = T::from_i32(t as i32) * self.p.sve.inv_half;
-                let x = self.sve.x_from + self.sve.x_span * f;
+                // The ramp's nearest code (`Dac::ramp`; no overflow for t ≤ half_samples).
+                let q = self
+                    .sve
+                    .x_q0
+                    .wrapping_add(self.sve.x_dq.wrapping_mul(i64::from(t)));
+                let raw = (q >> RAMP_FRAC) as i32;
                 if FAST {
-                    // y is settled (`ModeNow::sve_fast`): `set_x_same_y` would store x only.
-                    let (xc, xv, _) = self.p.xy_dac.quantize(x);
+                    // y is settled (`ModeNow::sve_fast`): `set_x_code_same_y` would store x only.
+                    let (xc, xv, _) = self.p.xy_dac.at_code(raw);
                     self.x = xv;
                     self.x_code = xc;
                 } else {
-                    self.set_x_same_y(x);
+                    self.set_x_code_same_y(raw);
                 }
                 if FAST {
                     // Counted by the clock (`SveState::fast_mark`).
@@ -2431,10 +2460,10 @@ impl<T: SineTable> Controller<T> {
         self.sve.acc.clear();
         self.set_sve_fast(false);
         self.sve.x_acc = T::ZERO;
-        (self.sve.x_from, self.sve.x_span) = if forward {
-            (p.x0, p.x1 - p.x0)
+        (self.sve.x_q0, self.sve.x_dq) = if forward {
+            self.p.xy_dac.ramp(p.x0, p.x1 - p.x0, p.half_samples)
         } else {
-            (p.x1, p.x0 - p.x1)
+            self.p.xy_dac.ramp(p.x1, p.x0 - p.x1, p.half_samples)
         };
         self.set_phase(if forward {
             Phase::Forward
@@ -2550,5 +2579,44 @@ mod accumulator_tests {
             h2.add_held::<2>([f64::NAN, f64::NAN, h, d], 0);
         }
         assert_means_equal::<2>(&p2, &h2, theta2(99));
+    }
+}
+
+#[cfg(test)]
+mod dac_tests {
+    use super::{Dac, RAMP_FRAC};
+
+    /// The SVE pass's integer ramp (`Dac::ramp`) lands on the line's nearest code at every
+    /// step, against the line formed in f64 from the same f32 ends (a tie, or a line within
+    /// 10⁻⁶ code of one, may go either way), and its codes are clamped like any other.
+    #[test]
+    fn the_pass_ramp_is_the_nearest_code_of_the_line() {
+        let dac = Dac::<f32>::new(-10_000.0, 10_000.0, 16);
+        let (mid, lsb) = (dac.mid as f64, dac.lsb as f64);
+        for (from, to, n) in [
+            (0.0f32, 5_000.0f32, 5_000u32),
+            (5_000.0, 0.0, 5_000),
+            (-9_999.7, 9_999.9, 37),
+            (1.234, 1.734, 250_000),
+            (-3_000.0, 7_321.5, 1),
+        ] {
+            let (q0, dq) = dac.ramp(from, to - from, n);
+            let (c0, span) = ((from as f64 - mid) / lsb, (to - from) as f64 / lsb);
+            let mut ties = 0;
+            for t in 0..=n {
+                let code = (q0.wrapping_add(dq.wrapping_mul(i64::from(t))) >> RAMP_FRAC) as i32;
+                let exact = c0 + span * t as f64 / n as f64;
+                let frac = exact - exact.floor();
+                if (frac - 0.5).abs() < 1e-6 {
+                    ties += 1;
+                    continue;
+                }
+                assert_eq!(code as f64, (exact + 0.5).floor(), "{from}..{to} step {t}");
+            }
+            assert!(ties <= 2 + n / 1000, "{ties} near-ties");
+            // Beyond the DAC's range the code clamps (at_code), as the float path did.
+            let (code, _, clamped) = dac.at_code((q0 >> RAMP_FRAC) as i32 + 1_000_000);
+            assert!(clamped && code == dac.code_max);
+        }
     }
 }
