@@ -334,8 +334,10 @@ impl<T: crate::Real> Dac<T> {
     /// t's nearest code (ties up) is `(q0 + dq·t) >> RAMP_FRAC`, in integers (issue 14, round
     /// 16: the SVE pass's x formed this way takes an integer multiply-add where the value, its
     /// offset, its scale and its rounding took ten FPU operations). Formed in f64 once per
-    /// pass. Codes are < 2²¹ (`CODE_BITS_MAX`), so q0 and dq·t (t ≤ `samples`) stay below 2⁶²;
-    /// dq is rounded, so step t is within t·2⁻⁴¹ of a code of the line.
+    /// pass. A DAC has at most 24 bits (the configuration), so its codes and the line's ends
+    /// (a pass may end at the top of the range, one code above the highest) are within
+    /// 2²³ + 1: q0 < 2⁶¹·¹, |dq·t| ≤ 2²⁴·2³⁸ = 2⁶² for t ≤ `samples`, and the sum < 2⁶³. dq is
+    /// rounded, so step t is within t·2⁻³⁹ of a code of the line.
     fn ramp(&self, from: T, span: T, samples: u32) -> (i64, i64) {
         const Q: f64 = (1u64 << RAMP_FRAC) as f64;
         let lsb = self.lsb.to_f64();
@@ -347,8 +349,9 @@ impl<T: crate::Real> Dac<T> {
     }
 }
 
-/// Fractional bits of [`Dac::ramp`]'s fixed-point codes.
-const RAMP_FRAC: u32 = 40;
+/// Fractional bits of [`Dac::ramp`]'s fixed-point codes: 38 keeps a 24-bit DAC's line inside
+/// i64 (40 overflowed at the top of its range: the review's catch).
+const RAMP_FRAC: u32 = 38;
 
 #[derive(Clone, Copy, Debug)]
 struct DiveParams<T> {
@@ -2379,7 +2382,8 @@ impl<T: SineTable> Controller<T> {
         match phase {
             Phase::Settle if t >= self.p.sve.settle_samples => self.begin_line(true),
             Phase::Forward | Phase::Backward => {
-                // The ramp's nearest code (`Dac::ramp`; no overflow for t ≤ half_samples).
+                // The ramp's nearest code (`Dac::ramp`: no overflow for t ≤ half_samples, any
+                // DAC the configuration allows).
                 let q = self
                     .sve
                     .x_q0
@@ -2617,6 +2621,31 @@ mod dac_tests {
             // Beyond the DAC's range the code clamps (at_code), as the float path did.
             let (code, _, clamped) = dac.at_code((q0 >> RAMP_FRAC) as i32 + 1_000_000);
             assert!(clamped && code == dac.code_max);
+        }
+    }
+
+    /// A 24-bit DAC (the configuration's widest; f64 and Q31.32 take it) scanned over its
+    /// whole range, to and from its top (one code above the highest, clamped), also in one
+    /// step: every step's code is the line's nearest, clamped, with no overflow.
+    #[test]
+    fn the_pass_ramp_holds_over_a_24_bit_range() {
+        let (lo, hi) = (-5_000.0, 5_000.0);
+        let dac = Dac::<f64>::new(lo, hi, 24);
+        for (from, to, n) in [
+            (lo, hi, 1_001u32),
+            (hi, lo, 1_001),
+            (lo, hi, 1),
+            (hi, lo, 2),
+        ] {
+            let (q0, dq) = dac.ramp(from, to - from, n);
+            for t in 0..=n {
+                let q = q0.wrapping_add(dq.wrapping_mul(i64::from(t)));
+                let (code, _, _) = dac.at_code((q >> RAMP_FRAC) as i32);
+                let exact =
+                    (from - dac.mid) / dac.lsb + (to - from) / dac.lsb * t as f64 / n as f64;
+                let want = ((exact + 0.5).floor() as i32).clamp(dac.code_min, dac.code_max);
+                assert_eq!(code, want, "{from}..{to} in {n}, step {t}");
+            }
         }
     }
 }
