@@ -749,6 +749,11 @@ impl SuiteRow {
     pub fn top(&self) -> Option<EffectKind> {
         self.named.first().copied()
     }
+    /// How far the findings cut the hidden misfit: the model's held-out RMS against the
+    /// noise-free truth before over after (truth-based; NaN where nothing could be fitted).
+    pub fn hidden_misfit_cut(&self) -> f64 {
+        self.truth_error_before_m / self.truth_error_after_m
+    }
     /// Whether the top-1 is right (for clean recordings: nothing named).
     pub fn correct(&self) -> bool {
         self.top() == self.effect
@@ -1166,7 +1171,7 @@ impl SuiteReport {
             .rows
             .iter()
             .filter(|r| r.effect.is_some() && r.correct())
-            .map(|r| r.truth_error_before_m / r.truth_error_after_m)
+            .map(|r| r.hidden_misfit_cut())
             // As `per_effect`: a cut that is not finite is not counted either way.
             .filter(|c| c.is_finite())
             .collect();
@@ -1241,7 +1246,7 @@ impl SuiteReport {
                 let right: Vec<&SuiteRow> = rows.iter().copied().filter(|r| r.correct()).collect();
                 let cuts: Vec<f64> = right
                     .iter()
-                    .map(|r| r.truth_error_before_m / r.truth_error_after_m)
+                    .map(|r| r.hidden_misfit_cut())
                     .filter(|c| c.is_finite())
                     .collect();
                 let spans: Vec<f64> = right
