@@ -507,6 +507,10 @@ fn status(rx_bad: u32, rx_seq: &SeqTracker) -> StatusFrame {
         rx_lost_frames: rx_seq.lost().min(u32::MAX as u64) as u32,
         state,
         estimates,
+        estimator_late: COUNTERS.estimator_late.load(Ordering::Relaxed),
+        blocks_dropped: COUNTERS.blocks_dropped.load(Ordering::Relaxed),
+        samples_dropped: COUNTERS.samples_dropped.load(Ordering::Relaxed),
+        tones_late: COUNTERS.tones_late.load(Ordering::Relaxed),
     }
 }
 

@@ -350,6 +350,18 @@ pub struct ReplayOutput {
     pub elapsed: Duration,
 }
 
+/// What a firmware's status counts as lost or late ([`StatusFrame::losses`]), as
+/// "3 blocks dropped, 1 estimator results late"; `None` when nothing was.
+pub fn firmware_losses(st: &StatusFrame) -> Option<String> {
+    let lost: Vec<String> = st
+        .losses()
+        .iter()
+        .filter(|(_, n)| *n != 0)
+        .map(|(what, n)| format!("{n} {what}"))
+        .collect();
+    (!lost.is_empty()).then(|| lost.join(", "))
+}
+
 /// Compares per-sample outputs bit for bit; the first differing sample index and a
 /// description, or `None` when identical (lengths included).
 pub fn first_difference(a: &[StepFrame], b: &[StepFrame]) -> Option<(usize, String)> {
@@ -913,6 +925,32 @@ pub mod qemu {
 mod tests {
     use super::*;
     use visco_protocol::{board, Command, PROTOCOL_VERSION};
+
+    /// The two rates' counters (protocol version 3) are losses but for the late chunks of
+    /// tones, which the loop computes itself: a status with only those reads as no loss.
+    #[test]
+    fn firmware_losses_name_the_two_rates_counts_but_not_late_tones() {
+        let mut st = StatusFrame {
+            tones_late: 4,
+            ..StatusFrame::default()
+        };
+        assert_eq!(firmware_losses(&st), None);
+        st.estimator_late = 1;
+        st.blocks_dropped = 3;
+        assert_eq!(
+            firmware_losses(&st).as_deref(),
+            Some("1 estimator results late, 3 blocks dropped")
+        );
+        st.samples_dropped = 2;
+        st.starved = 5;
+        assert_eq!(
+            firmware_losses(&st).as_deref(),
+            Some(
+                "5 loop interrupts starved, 1 estimator results late, 3 blocks dropped, \
+                 2 samples dropped"
+            )
+        );
+    }
 
     fn encode_stream(msgs: &[(u32, Telemetry)]) -> Vec<u8> {
         let mut v = Vec::new();

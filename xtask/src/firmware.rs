@@ -18,7 +18,8 @@ use visco::replay::{
 use visco::sample::Sample;
 use visco::telemetry::qemu::{QemuLink, QemuOptions};
 use visco::telemetry::{
-    check_blocks, first_difference, first_record_difference, LinkStats, ReplayInput,
+    check_blocks, firmware_losses, first_difference, first_record_difference, LinkStats,
+    ReplayInput,
 };
 use visco_core::fixed::Q32;
 use visco_protocol::{
@@ -537,10 +538,9 @@ pub fn qemu_smoke(steps: u32) -> Result<()> {
             .filter(|m| matches!(m, Telemetry::Record(_)))
             .count();
         println!(
-            "qemu-smoke {mode:?}: {} samples, {records} records, {} starved, {} telemetry dropped",
+            "qemu-smoke {mode:?}: {} samples, {records} records; firmware counted: {}",
             status.samples - before,
-            status.starved,
-            status.telemetry_dropped
+            firmware_losses(&status).unwrap_or_else(|| "nothing lost or late".to_string())
         );
         if status.state == 0 {
             return Err(format!("{mode:?}: the core was not running"));
@@ -548,8 +548,8 @@ pub fn qemu_smoke(steps: u32) -> Result<()> {
         if mode == Mode::Dive && records == 0 {
             return Err(format!("{mode:?}: no tap record in {steps} samples"));
         }
-        if status.starved != 0 || status.telemetry_dropped != 0 {
-            return Err(format!("{mode:?}: firmware counted losses: {status:?}"));
+        if let Some(l) = firmware_losses(&status) {
+            return Err(format!("{mode:?}: firmware counted {l}: {status:?}"));
         }
     }
     // A refused configuration names the field.
@@ -803,8 +803,17 @@ pub fn replay_image(img: &Image, s: &Scenario, full: bool) -> Result<ReplayResul
         eprintln!("replay {}: {d}", s.name);
     }
     let status = r.firmware.status.unwrap_or_default();
-    if status.telemetry_dropped != 0 || status.starved != 0 {
-        return Err(format!("replay {}: firmware losses {status:?}", s.name));
+    if let Some(l) = firmware_losses(&status) {
+        return Err(format!(
+            "replay {}: firmware counted {l}: {status:?}",
+            s.name
+        ));
+    }
+    if status.tones_late != 0 {
+        println!(
+            "replay {}: {} chunks of tones computed by the loop (the task's were late)",
+            s.name, status.tones_late
+        );
     }
     let reproduces = r.host.len() == sim.steps.len()
         && r.host
@@ -1334,8 +1343,11 @@ pub fn bench_window(
             w.name
         ));
     }
-    if st.starved != 0 || st.telemetry_dropped != 0 {
-        return Err(format!("{}: losses during the bench: {st:?}", w.name));
+    if let Some(l) = firmware_losses(&st) {
+        return Err(format!(
+            "{}: the firmware counted {l} by the bench's end: {st:?}",
+            w.name
+        ));
     }
     // 4. The core must be where the host is: continue the replay, every field compared.
     let cont = &sim.codes[start + n..start + n + after];

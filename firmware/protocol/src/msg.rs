@@ -9,7 +9,7 @@
 use crate::wire::{Reader, Short, Writer};
 
 /// Bumped whenever a layout below changes.
-pub const PROTOCOL_VERSION: u16 = 2;
+pub const PROTOCOL_VERSION: u16 = 3;
 
 /// The most samples one [`Command::Feed`] block carries (f32 samples: 4 bytes each).
 pub const MAX_FEED: usize = 48;
@@ -439,6 +439,32 @@ pub struct StatusFrame {
     pub state: u8,
     /// Current aggregate estimates (c, k, h).
     pub estimates: [f32; 3],
+    /// Estimator results not back at the block close where they were due (the estimator
+    /// interrupt overran its N samples): each was adopted one block later, so the firmware's
+    /// estimates then differ from the host's schedule (version 3).
+    pub estimator_late: u32,
+    /// Blocks lost to a full estimator queue, with their samples' information (version 3).
+    pub blocks_dropped: u32,
+    /// Samples that did not fit their block (never, by the schedule; version 3).
+    pub samples_dropped: u32,
+    /// Chunks of tones the estimator task had not computed when they began: the loop ran its
+    /// own oscillators for them, with the same values (a cost, not a loss; version 3).
+    pub tones_late: u32,
+}
+
+impl StatusFrame {
+    /// What the firmware counted as lost or late, each count with its name (zero: none).
+    /// Late chunks of tones are not among them: the loop computes those itself, with the
+    /// same values.
+    pub fn losses(&self) -> [(&'static str, u32); 5] {
+        [
+            ("loop interrupts starved", self.starved),
+            ("telemetry items dropped", self.telemetry_dropped),
+            ("estimator results late", self.estimator_late),
+            ("blocks dropped", self.blocks_dropped),
+            ("samples dropped", self.samples_dropped),
+        ]
+    }
 }
 
 /// The result of [`Command::Bench`].
@@ -857,7 +883,11 @@ impl Telemetry {
                 w.u32(s.rx_bad_frames)?;
                 w.u32(s.rx_lost_frames)?;
                 w.u8(s.state)?;
-                est(w, &s.estimates)
+                est(w, &s.estimates)?;
+                w.u32(s.estimator_late)?;
+                w.u32(s.blocks_dropped)?;
+                w.u32(s.samples_dropped)?;
+                w.u32(s.tones_late)
             }
             Telemetry::Bench(b) => {
                 w.u8(kind::BENCH_RESULT)?;
@@ -952,6 +982,10 @@ impl Telemetry {
                 rx_lost_frames: r.u32()?,
                 state: r.u8()?,
                 estimates: read_est(&mut r)?,
+                estimator_late: r.u32()?,
+                blocks_dropped: r.u32()?,
+                samples_dropped: r.u32()?,
+                tones_late: r.u32()?,
             }),
             kind::BENCH_RESULT => Telemetry::Bench(BenchFrame {
                 mode: r.u8()?,

@@ -140,6 +140,10 @@ fn all_telemetry() -> Vec<Telemetry> {
             rx_lost_frames: 5,
             state: 1,
             estimates: [0.0; 3],
+            estimator_late: 6,
+            blocks_dropped: 7,
+            samples_dropped: 8,
+            tones_late: 9,
         }),
         Telemetry::Bench(BenchFrame {
             mode: 1,

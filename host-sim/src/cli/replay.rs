@@ -11,7 +11,7 @@ use visco::replay::{
     InputKind, Target,
 };
 use visco::sample::Sample;
-use visco::telemetry::{write_recording_csv, LinkStats};
+use visco::telemetry::{firmware_losses, write_recording_csv, LinkStats};
 use visco_protocol::{Mode, PerSample};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -255,6 +255,14 @@ pub fn run(args: ReplayArgs) -> CliResult {
         n.saturating_sub(1)
     );
     println!("link: {}", r.firmware.stats);
+    if let Some(st) = &r.firmware.status {
+        println!(
+            "firmware counted: {}; {} chunks of tones computed by the loop (the estimator \
+             task's were late: a cost, not a loss)",
+            firmware_losses(st).unwrap_or_else(|| "nothing lost or late".to_string()),
+            st.tones_late
+        );
+    }
     if let Some(out) = &args.out {
         let meta = vec![
             ("mode", format!("{mode:?}").to_lowercase()),
