@@ -55,8 +55,8 @@ pub struct Counters {
     pub starved: AtomicU32,
     /// Telemetry items lost to a full queue.
     pub telemetry_dropped: AtomicU32,
-    /// Estimator results not back when due (the estimator interrupt overran its N samples;
-    /// the result is adopted at the next block close instead).
+    /// Block closes at which an estimator result was still out (the estimator interrupt
+    /// overran its N samples; the result is adopted at a later close instead).
     pub estimator_late: AtomicU32,
     /// Blocks lost to a full estimator queue (with their samples).
     pub blocks_dropped: AtomicU32,
@@ -626,13 +626,12 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
         if core.block_due() {
             if self.in_flight > 0 {
                 // The schedule: the last block's result is adopted now, before this step.
-                let mut got = false;
                 while let Some(r) = self.estimator.receive() {
                     core.deliver(&r);
                     self.in_flight -= 1;
-                    got = true;
                 }
-                if !got {
+                // One still out is late (a steady lag of a block counts at every close).
+                if self.in_flight > 0 {
                     bump(&self.counters.estimator_late);
                 }
             }
@@ -916,5 +915,67 @@ mod tests {
         // The core starts above the first tap: the lateral DACs are written once, then hold.
         assert_eq!(st.xy_out.0.len(), 1);
         assert_eq!(st.core.running_mode(), Some(Mode::Dive));
+        // The task ran at once: no block close found a result still out.
+        assert_eq!(COUNTERS.estimator_late.load(Ordering::Relaxed), 0);
+    }
+
+    /// The task a block late (each result released by the next hand-over): every close but
+    /// the first finds a result still out, and counts it; the blocks are not lost.
+    #[test]
+    fn a_late_estimator_is_counted_at_every_close() {
+        static CMD: CommandSlot = CommandSlot::new();
+        static COUNTERS: Counters = Counters::new();
+        struct Lagging {
+            inner: Inline,
+            held: Option<BlockResult>,
+            out: Option<BlockResult>,
+            sent: u32,
+        }
+        impl ToneSource<Number> for Lagging {}
+        impl SampleSink<Number> for Lagging {
+            fn push(&mut self, s: Sample) {
+                self.inner.push(s);
+            }
+        }
+        impl EstimatorLink for Lagging {
+            fn send(&mut self, b: Block) -> bool {
+                self.sent += 1;
+                self.out = self.held.take();
+                let ok = self.inner.send(b);
+                self.held = self.inner.receive();
+                ok
+            }
+            fn receive(&mut self) -> Option<BlockResult> {
+                self.out.take()
+            }
+        }
+        let tel: &'static mut Queue<Item, { TELEMETRY_DEPTH + 1 }> =
+            std::boxed::Box::leak(std::boxed::Box::new(Queue::new()));
+        let (tp, _tc) = tel.split();
+        let built = build_core(&StagedConfig::new(), None).unwrap();
+        let n = 3000;
+        let mut st = LoopState::new(
+            Fed(std::vec![Number::from_metres(0.0); n]),
+            Words::default(),
+            Xy::default(),
+            built.core,
+            Lagging {
+                inner: Inline(built.task, None, Default::default()),
+                held: None,
+                out: None,
+                sent: 0,
+            },
+            tp,
+            &CMD,
+            &COUNTERS,
+        );
+        CMD.post(CoreCommand::Start(Mode::Dive));
+        for _ in 0..n {
+            st.on_sample();
+        }
+        let sent = st.estimator.sent;
+        assert!(sent > 50, "{sent} blocks");
+        assert_eq!(COUNTERS.estimator_late.load(Ordering::Relaxed), sent - 1);
+        assert_eq!(COUNTERS.blocks_dropped.load(Ordering::Relaxed), 0);
     }
 }

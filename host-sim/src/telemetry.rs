@@ -351,7 +351,7 @@ pub struct ReplayOutput {
 }
 
 /// What a firmware's status counts as lost or late ([`StatusFrame::losses`]), as
-/// "3 blocks dropped, 1 estimator results late"; `None` when nothing was.
+/// "3 blocks dropped, 1 block closes with an estimator result out"; `None` when nothing was.
 pub fn firmware_losses(st: &StatusFrame) -> Option<String> {
     let lost: Vec<String> = st
         .losses()
@@ -939,15 +939,15 @@ mod tests {
         st.blocks_dropped = 3;
         assert_eq!(
             firmware_losses(&st).as_deref(),
-            Some("1 estimator results late, 3 blocks dropped")
+            Some("1 block closes with an estimator result out, 3 blocks dropped")
         );
         st.samples_dropped = 2;
         st.starved = 5;
         assert_eq!(
             firmware_losses(&st).as_deref(),
             Some(
-                "5 loop interrupts starved, 1 estimator results late, 3 blocks dropped, \
-                 2 samples dropped"
+                "5 loop interrupts starved, 1 block closes with an estimator result out, \
+                 3 blocks dropped, 2 samples dropped"
             )
         );
     }

@@ -439,8 +439,8 @@ pub struct StatusFrame {
     pub state: u8,
     /// Current aggregate estimates (c, k, h).
     pub estimates: [f32; 3],
-    /// Estimator results not back at the block close where they were due (the estimator
-    /// interrupt overran its N samples): each was adopted one block later, so the firmware's
+    /// Block closes at which an estimator result was still out (the estimator interrupt
+    /// overran its N samples): the result was adopted at a later close, so the firmware's
     /// estimates then differ from the host's schedule (version 3).
     pub estimator_late: u32,
     /// Blocks lost to a full estimator queue, with their samples' information (version 3).
@@ -460,7 +460,10 @@ impl StatusFrame {
         [
             ("loop interrupts starved", self.starved),
             ("telemetry items dropped", self.telemetry_dropped),
-            ("estimator results late", self.estimator_late),
+            (
+                "block closes with an estimator result out",
+                self.estimator_late,
+            ),
             ("blocks dropped", self.blocks_dropped),
             ("samples dropped", self.samples_dropped),
         ]
