@@ -802,7 +802,10 @@ pub fn replay_image(img: &Image, s: &Scenario, full: bool) -> Result<ReplayResul
     if let Some(d) = &r.difference {
         eprintln!("replay {}: {d}", s.name);
     }
-    let status = r.firmware.status.unwrap_or_default();
+    let status = r
+        .firmware
+        .status
+        .ok_or_else(|| format!("replay {}: no status from the firmware", s.name))?;
     if let Some(l) = firmware_losses(&status) {
         return Err(format!(
             "replay {}: firmware counted {l}: {status:?}",
@@ -1144,7 +1147,13 @@ pub fn bench_idle(img: &Image, steps: u32, shift: u32) -> Result<BenchResult> {
     })
     .map_err(io)?;
     let b = take_bench(&mut link)?;
+    let st = link.status().map_err(io)?;
     finish(link, elf, &defmt)?;
+    if let Some(l) = firmware_losses(&st) {
+        return Err(format!(
+            "idle: the firmware counted {l} by the bench's end: {st:?}"
+        ));
+    }
     let (per, _) = insns(&b, ipt)?;
     Ok(BenchResult {
         name: "idle".into(),
