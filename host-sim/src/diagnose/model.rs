@@ -152,10 +152,15 @@ impl Bed {
     pub fn describe(self) -> String {
         match self {
             Bed::Continuum => "continuum limit of the element bed".to_string(),
+            // The lattice is periodic: the fit's offset (bounded to −1..2 so that it can
+            // cross a cell's edge) is reported inside the cell, where refsim's stress
+            // relaxation s2 read "(−1.000, −1.000)".
             Bed::Lattice { pitch_nm, offset } => format!(
                 "square lattice of discrete elements, pitch {pitch_nm:.1} nm, tip axis at \
                  ({:.3}, {:.3}) of a cell",
-                offset[0], offset[1]
+                // (+ 0.0: −1 leaves −0.)
+                offset[0].rem_euclid(1.0) + 0.0,
+                offset[1].rem_euclid(1.0) + 0.0
             ),
         }
     }
@@ -1115,6 +1120,18 @@ fn solve_quasi_static(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A lattice's offset is reported inside its cell, whatever side of a cell's edge the fit
+    /// left it on (the lattice is periodic), and never as −0.
+    #[test]
+    fn a_lattice_offset_is_described_inside_its_cell() {
+        let d = Bed::Lattice {
+            pitch_nm: 60.0,
+            offset: [-1.0, 1.25],
+        }
+        .describe();
+        assert!(d.ends_with("tip axis at (0.000, 0.250) of a cell"), "{d}");
+    }
 
     /// A lattice's contact area p²·n(δ) against the continuum's πa²: the cells of the
     /// engaged elements cover the disk of radius a − p/√2 and lie inside the one of radius
