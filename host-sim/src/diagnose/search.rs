@@ -550,7 +550,8 @@ impl Problem {
     }
 
     /// Held-out RMS of `r0` and `r1` where `contribution` is at least a tenth of its peak, or
-    /// over its [`WHERE_MIN_SAMPLES`] largest held-out values where that region holds fewer:
+    /// over its [`WHERE_MIN_SAMPLES`] largest held-out values where that region holds fewer
+    /// (never where it is zero):
     /// a contribution with a spike (a drag's at the turn of a force curve, where the base's
     /// velocity jumps) has its tenth-of-peak region in a few samples, whose RMS is chance
     /// (refsim's drag s19: 17 pm before against 0.19 nm of noise, so a drag that cut the
@@ -1837,9 +1838,11 @@ pub fn rms_where(held: &[bool], r0: &[f64], r1: &[f64], contribution: &[f64]) ->
         let (_, kth, _) = largest.select_nth_unstable_by(k, f64::total_cmp);
         threshold = threshold.min(*kth);
     }
+    // Never where it contributes nothing (an effect on fewer held-out samples than the
+    // minimum: a zero threshold would take in every sample).
     let (mut a, mut b, mut n) = (0.0, 0.0, 0usize);
     for i in 0..r0.len() {
-        if held[i] && peak > 0.0 && contribution[i].abs() >= threshold {
+        if held[i] && peak > 0.0 && contribution[i] != 0.0 && contribution[i].abs() >= threshold {
             a += r0[i] * r0[i];
             b += r1[i] * r1[i];
             n += 1;
@@ -2068,6 +2071,14 @@ mod tests {
             (b - want).abs() < 1e-12 && (a - 1.0).abs() < 1e-12,
             "{b} → {a}"
         );
+        // An effect on fewer held-out samples than the minimum (the spike's 3 alone): those,
+        // not every held-out sample.
+        let spike_only: Vec<f64> = contribution
+            .iter()
+            .map(|&c| if c > 50.0 { c } else { 0.0 })
+            .collect();
+        let (b, a) = rms_where(&held, &r0, &r1, &spike_only);
+        assert!(b == 0.0 && a == 1.0, "{b} → {a}");
         // Fewer held-out samples than the minimum (10): the tenth-of-peak region, as before
         // (here the spike's one sample, 501).
         let few: Vec<bool> = (0..n).map(|i| i % 100 == 1).collect();
