@@ -866,23 +866,44 @@ mod tests {
         assert!(brx.peek().is_none());
     }
 
-    #[test]
-    fn steps_counts_and_reports_drops() {
-        static CMD: CommandSlot = CommandSlot::new();
-        static COUNTERS: Counters = Counters::new();
+    /// A loop state on a free cantilever (D = 0 for `n` samples) with the default core, its
+    /// estimator task behind the link `link` makes of it, and the telemetry's consumer.
+    #[allow(clippy::type_complexity)]
+    fn free_lever<E: EstimatorLink>(
+        n: usize,
+        link: impl FnOnce(EstimatorTask) -> E,
+        cmd: &'static CommandSlot,
+        counters: &'static Counters,
+    ) -> (
+        LoopState<Fed, Words, Xy, crate::core_glue::ActiveCore, E>,
+        heapless::spsc::Consumer<'static, Item>,
+    ) {
         let tel: &'static mut Queue<Item, { TELEMETRY_DEPTH + 1 }> =
             std::boxed::Box::leak(std::boxed::Box::new(Queue::new()));
-        let (tp, mut tc) = tel.split();
+        let (tp, tc) = tel.split();
         let built = build_core(&StagedConfig::new(), None).unwrap();
-        // Free cantilever: D = 0; the core moves to the first tap, then approaches.
-        let n = 3000;
-        let mut st = LoopState::new(
+        let st = LoopState::new(
             Fed(std::vec![Number::from_metres(0.0); n]),
             Words::default(),
             Xy::default(),
             built.core,
-            Inline(built.task, None, Default::default()),
+            link(built.task),
             tp,
+            cmd,
+            counters,
+        );
+        (st, tc)
+    }
+
+    #[test]
+    fn steps_counts_and_reports_drops() {
+        static CMD: CommandSlot = CommandSlot::new();
+        static COUNTERS: Counters = Counters::new();
+        // Free cantilever: D = 0; the core moves to the first tap, then approaches.
+        let n = 3000;
+        let (mut st, mut tc) = free_lever(
+            n,
+            |task| Inline(task, None, Default::default()),
             &CMD,
             &COUNTERS,
         );
@@ -949,23 +970,15 @@ mod tests {
                 self.out.take()
             }
         }
-        let tel: &'static mut Queue<Item, { TELEMETRY_DEPTH + 1 }> =
-            std::boxed::Box::leak(std::boxed::Box::new(Queue::new()));
-        let (tp, _tc) = tel.split();
-        let built = build_core(&StagedConfig::new(), None).unwrap();
         let n = 3000;
-        let mut st = LoopState::new(
-            Fed(std::vec![Number::from_metres(0.0); n]),
-            Words::default(),
-            Xy::default(),
-            built.core,
-            Lagging {
-                inner: Inline(built.task, None, Default::default()),
+        let (mut st, _tc) = free_lever(
+            n,
+            |task| Lagging {
+                inner: Inline(task, None, Default::default()),
                 held: None,
                 out: None,
                 sent: 0,
             },
-            tp,
             &CMD,
             &COUNTERS,
         );
