@@ -66,9 +66,10 @@ fn main() {
         .expect("diagnosed");
         let total = t0.elapsed().as_secs_f64();
         println!(
-            "threads {threads}: {total:.2} s, {} simulations ({:.1} s of one-thread simulation at the rate above); nominal held-out RMS {:.4e} m = {:.2}× noise; named {:?}",
+            "threads {threads}: {total:.2} s, {} simulations of {} model evaluations ({:.1} s of one-thread simulation at the rate above); nominal held-out RMS {:.4e} m = {:.2}× noise; named {:?}",
+            diag.search.simulations,
             diag.search.evaluations,
-            diag.search.evaluations as f64 * sim_s,
+            diag.search.simulations as f64 * sim_s,
             diag.rms_before_m,
             diag.rms_before_m / noise,
             diag.findings.iter().map(|f| f.kind.as_str()).collect::<Vec<_>>()

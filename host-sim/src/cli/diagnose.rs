@@ -91,9 +91,10 @@ pub fn run(args: DiagnoseArgs) -> CliResult {
     let t = std::time::Instant::now();
     let d = diagnose(&args.recording, &opts)?;
     println!(
-        "diagnosed {} in {:.1} s ({} simulations)",
+        "diagnosed {} in {:.1} s ({} simulations, {} model evaluations)",
         args.recording.display(),
         t.elapsed().as_secs_f64(),
+        d.search.simulations,
         d.search.evaluations
     );
     println!("{}", d.summary());

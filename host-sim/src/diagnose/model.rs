@@ -426,6 +426,22 @@ pub fn simulate(
     nom: &Nominal,
     effects: &mut [Box<dyn Effect>],
     data: &Data,
+    trace: Option<&mut Trace>,
+) -> Vec<f64> {
+    let mut out = simulate_before_offset(inst, nom, effects, data, trace);
+    for d in &mut out {
+        *d += nom.offset;
+    }
+    out
+}
+
+/// [`simulate`] without the detector offset d₀: nothing else reads d₀, so a reading at any
+/// offset is this plus it, bit for bit (a fit's offset column needs no simulation).
+pub fn simulate_before_offset(
+    inst: &Instrument,
+    nom: &Nominal,
+    effects: &mut [Box<dyn Effect>],
+    data: &Data,
     mut trace: Option<&mut Trace>,
 ) -> Vec<f64> {
     let n = data.len();
@@ -543,7 +559,7 @@ pub fn simulate(
                 tr.v.push(v);
             }
         }
-        out.push(d + nom.offset);
+        out.push(d);
     }
     out
 }

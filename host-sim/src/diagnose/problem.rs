@@ -76,6 +76,12 @@ pub struct Problem {
     pub baseline_wave: Option<crate::identify::force_curve::Baseline>,
     /// The wave per sample (nm; empty without one): what `data.d` had taken out.
     pub wave_nm: Vec<f64>,
+    /// Unique to each [`Problem::new`] and kept by its clones: the search's recent
+    /// simulations are looked up by it (with the model and the scales), since what a
+    /// simulation reads (`inst`, `data.t`, `data.u`, `data.unit`) is never changed after.
+    pub(crate) simulations_key: u64,
+    /// Simulations run on these samples (by this problem and its clones; `search`).
+    pub(crate) simulations: std::sync::Arc<std::sync::atomic::AtomicUsize>,
 }
 
 impl Problem {
@@ -235,6 +241,11 @@ impl Problem {
             huber_nm: None,
             baseline_wave,
             wave_nm,
+            simulations_key: {
+                static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+                NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+            },
+            simulations: Default::default(),
         })
     }
 

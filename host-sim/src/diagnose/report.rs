@@ -502,7 +502,7 @@ impl Diagnosis {
                 detection_floor: format!(
                     "an effect must also change D by {DETECTION_FLOOR}× the noise RMS somewhere"
                 ),
-                simulations: s.evaluations as u64,
+                simulations: s.simulations as u64,
                 stages,
             },
             locate: jr::LocateJson {

@@ -38,11 +38,15 @@
 
 use super::candidates::{Candidate, Env};
 use super::fit::{levenberg_marquardt, linear_least_squares, ssr, LmOptions, Param};
-use super::model::{reading_with, simulate, Bed, Input, Nominal, Trace};
+use super::model::{reading_with, simulate, simulate_before_offset, Bed, Input, Nominal, Trace};
 use super::noise::{held_out_test, HeldOut, NoiseModel, MAX_ORDER};
 use super::problem::Problem;
 use crate::numerics::golden_section;
 use crate::plant::effects::{Effect, EffectKind};
+use std::cell::RefCell;
+use std::collections::VecDeque;
+use std::rc::Rc;
+use std::sync::atomic::Ordering;
 use visco_core::units::{DAMPING, FORCE, LENGTH, TIME};
 
 /// Iterations after which a candidate's polish from another nominal optimum gives up when it
@@ -80,6 +84,17 @@ impl Model {
             .map(|(c, v)| c.spec(v, env).build())
             .collect()
     }
+}
+
+/// How many of a thread's last simulations are kept: a polish's last accepted point and the
+/// trials after it.
+const RECENT: usize = 3;
+
+thread_local! {
+    /// A thread's last simulations (key, reading before the offset), newest last: see
+    /// [`Problem::simulate_before_offset`].
+    static RECENT_SIMULATIONS: RefCell<VecDeque<(String, Rc<Vec<f64>>)>> =
+        const { RefCell::new(VecDeque::new()) };
 }
 
 /// Which model quantity a fit parameter sets.
@@ -316,8 +331,12 @@ pub struct Search {
     /// The candidates the linearised screen left unpolished at each stage (stage, kind, the
     /// screen's SSR gain over the stage's model as a fraction of its SSR on the fit samples).
     pub screened_out: Vec<(usize, EffectKind, f64)>,
-    /// Total simulations.
+    /// Evaluations of a model as the search counts them: simulations, replays of a
+    /// reading-only effect on a model's states, and recent readings reused (see
+    /// [`Problem::simulate_before_offset`]).
     pub evaluations: usize,
+    /// Simulations of the recording run by the search.
+    pub simulations: usize,
 }
 
 /// Search options.
@@ -349,6 +368,7 @@ impl Problem {
     /// The model's detector reading (nm) at every sample, with the states if asked.
     pub fn simulate(&self, m: &Model, env: &Env, trace: Option<&mut Trace>) -> Vec<f64> {
         let mut fx = m.build_effects(env);
+        self.simulations.fetch_add(1, Ordering::Relaxed);
         simulate(&self.inst, &m.nominal, &mut fx, &self.data, trace)
     }
 
@@ -464,13 +484,56 @@ impl Problem {
         }
     }
 
+    /// [`Problem::simulate`] without the detector offset (`model::simulate_before_offset`),
+    /// from this thread's recent simulations where one had the same model but for the offset
+    /// (nothing else in a simulation reads it): a Jacobian's offset column, a polish's start
+    /// at the point the last one ended, a fit's residual at its polished point. Each
+    /// simulation run is counted in `simulations`.
+    fn simulate_before_offset(&self, m: &Model, env: &Env) -> Rc<Vec<f64>> {
+        let mut key_model = m.clone();
+        key_model.nominal.offset = 0.0;
+        // `Debug` writes each f64 so that it reads back to the same bits (−0 included).
+        let key = format!(
+            "{}|{:?}|{:?}|{:?}",
+            self.simulations_key, self.inst, env, key_model
+        );
+        let hit = RECENT_SIMULATIONS.with(|r| {
+            r.borrow()
+                .iter()
+                .find(|(k, _)| *k == key)
+                .map(|(_, y)| Rc::clone(y))
+        });
+        if let Some(y) = hit {
+            return y;
+        }
+        let mut fx = m.build_effects(env);
+        let y = Rc::new(simulate_before_offset(
+            &self.inst, &m.nominal, &mut fx, &self.data, None,
+        ));
+        self.simulations.fetch_add(1, Ordering::Relaxed);
+        RECENT_SIMULATIONS.with(|r| {
+            let mut r = r.borrow_mut();
+            if r.len() == RECENT {
+                r.pop_front();
+            }
+            r.push_back((key, Rc::clone(&y)));
+        });
+        y
+    }
+
     /// Residual on the fit samples only.
     fn fit_residual(&self, m: &Model, env: &Env) -> Option<Vec<f64>> {
-        let sim = self.simulate(m, env, None);
-        let mut out = Vec::with_capacity(sim.len() / 2 + 1);
-        for ((&d, &y), &fit) in self.data.d.iter().zip(&sim).zip(&self.fit) {
+        self.fit_residual_from(&self.simulate_before_offset(m, env), m, env)
+    }
+
+    /// [`Problem::fit_residual`] from the model's reading before its offset, which `m`'s
+    /// offset is added to here exactly as [`simulate`] adds it.
+    fn fit_residual_from(&self, before_offset: &[f64], m: &Model, env: &Env) -> Option<Vec<f64>> {
+        let offset = m.nominal.offset;
+        let mut out = Vec::with_capacity(before_offset.len() / 2 + 1);
+        for ((&d, &y0), &fit) in self.data.d.iter().zip(before_offset).zip(&self.fit) {
             if fit {
-                let r = d - y;
+                let r = d - (y0 + offset);
                 if !r.is_finite() {
                     return None;
                 }
@@ -1271,6 +1334,7 @@ impl Problem {
     pub fn search(&self, opts: &SearchOptions, mut progress: impl FnMut(&str)) -> Search {
         let inits = self.initial_nominals();
         let env0 = super::environment(self, &Model::nominal(inits[0].clone()), None);
+        let simulations_before = self.simulations.load(Ordering::Relaxed);
         let mut evaluations = 0;
         // The first start polished with the input held: the robustness check's fit, reused
         // as the nominal fit's first.
@@ -1289,6 +1353,8 @@ impl Problem {
                 progress("misfit dominates the residual: robust (Huber) fitting");
                 let mut out = robust.search(opts, progress);
                 out.evaluations += evaluations;
+                // The robust problem is a clone: its simulations are counted with these.
+                out.simulations = self.simulations.load(Ordering::Relaxed) - simulations_before;
                 return out;
             }
             first = Some((s, m));
@@ -1744,6 +1810,7 @@ impl Problem {
             levels,
             screened_out,
             evaluations,
+            simulations: self.simulations.load(Ordering::Relaxed) - simulations_before,
         }
     }
 }
