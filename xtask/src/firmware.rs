@@ -2415,7 +2415,9 @@ fn interrupt_ranges(dis: &str) -> Vec<std::ops::Range<u32>> {
     for (i, (a, name)) in starts.iter().enumerate() {
         let end = starts.get(i + 1).map_or(u32::MAX, |s| s.0);
         // Compiler helpers too (`__aeabi_*` soft float, `__multi3`, `__divti3`: the Cortex-M3
-        // builds call them): during the bench only the interrupt runs them.
+        // builds call them). Not only the interrupts run them: the main loop's `memcpy` and
+        // `memclr` as it takes the bench command and answers it are counted too (~5 per
+        // interrupt over 200, see firmware/README.md).
         let wanted = name == "TIMER0"
             || (name.starts_with("visco_core::") && !name.contains("config"))
             || name.starts_with("visco_firmware::core_config::")
