@@ -12,7 +12,7 @@ mod diagnose_support;
 
 use diagnose_support::{mid_oscillation_tap, TapProtocol};
 use visco::diagnose::candidates::Candidate;
-use visco::diagnose::model::Trace;
+use visco::diagnose::model::{Bed, Trace};
 use visco::diagnose::problem::Problem;
 use visco::diagnose::search::Model;
 use visco::plant::effects::EffectKind;
@@ -103,8 +103,9 @@ fn the_reading_before_the_offset_does_not_depend_on_it() {
         v[0] = 5.0 * cand.params[0].grid[0];
         model.effects.push((cand, v));
     }
-    let run = |offset: f64, before: bool| {
+    let run = |bed: Bed, offset: f64, before: bool| {
         let mut m = model.clone();
+        m.nominal.bed = bed;
         m.nominal.offset = offset;
         let mut fx = m.build_effects(&env);
         if before {
@@ -114,12 +115,83 @@ fn the_reading_before_the_offset_does_not_depend_on_it() {
         }
     };
     let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-    let base = run(0.0, true);
-    assert!(base.len() == prob.data.len() && base.iter().all(|x| x.is_finite()));
-    for offset in [-3.7e2, 0.123, 41.0] {
-        assert_eq!(bits(&run(offset, true)), bits(&base), "offset {offset}");
-        let full = run(offset, false);
-        let added: Vec<f64> = base.iter().map(|y| y + offset).collect();
-        assert_eq!(bits(&full), bits(&added), "offset {offset}");
+    // The continuum bed, then a lattice (its event search in contact).
+    for bed in [
+        model.nominal.bed,
+        Bed::Lattice {
+            pitch_nm: 100.0,
+            offset: [0.3, 0.6],
+        },
+    ] {
+        let base = run(bed, 0.0, true);
+        assert!(base.len() == prob.data.len() && base.iter().all(|x| x.is_finite()));
+        for offset in [-3.7e2, 0.123, 41.0] {
+            assert_eq!(
+                bits(&run(bed, offset, true)),
+                bits(&base),
+                "{bed:?}, offset {offset}"
+            );
+            let full = run(bed, offset, false);
+            let added: Vec<f64> = base.iter().map(|y| y + offset).collect();
+            assert_eq!(bits(&full), bits(&added), "{bed:?}, offset {offset}");
+        }
+    }
+}
+
+/// The fits' residuals (`Problem::fit_residual`) come from the thread's recent simulations
+/// where the model differs from one of them in the detector offset alone, and are then what a
+/// fresh simulation gives, bit for bit; a model that differs in anything else (a contact's
+/// stiffness, an effect's value, the scales the effects are built with) is simulated anew.
+#[test]
+fn the_fits_residuals_reuse_a_recent_simulation_only_across_the_offset() {
+    use visco::diagnose::candidates::Env;
+    let (rec, _) = mid_oscillation_tap(&TapProtocol::short(), 9, [0.37, 0.61]);
+    let prob = Problem::new(&rec).expect("a problem");
+    let mut m0 = Model::nominal(prob.initial_nominals()[0].clone());
+    let env = visco::diagnose::environment(&prob, &m0, None);
+    let drag = Candidate::new(EffectKind::HydrodynamicDrag, &env).expect("drag");
+    let mut v = drag.null_values();
+    v[0] = 5.0 * drag.params[0].grid[0];
+    m0.effects.push((drag, v));
+    // A fresh simulation's residual on the fit samples, with the prior rows.
+    let fresh = |m: &Model, env: &Env| -> Vec<u64> {
+        let r = prob.residual(m, env);
+        let mut out: Vec<f64> = r
+            .iter()
+            .zip(&prob.fit)
+            .filter(|(_, &fit)| fit)
+            .map(|(&x, _)| x)
+            .collect();
+        out.extend(prob.prior_rows(m, env));
+        out.iter().map(|x| x.to_bits()).collect()
+    };
+    // The residual, and whether it took a simulation.
+    let cached = |m: &Model, env: &Env| -> (Vec<u64>, usize) {
+        let before = prob.simulations_run();
+        let r = prob.fit_residual(m, env).expect("finite");
+        (
+            r.iter().map(|x| x.to_bits()).collect(),
+            prob.simulations_run() - before,
+        )
+    };
+    let mut m1 = m0.clone();
+    m1.nominal.offset += 3.7;
+    let mut m2 = m1.clone();
+    m2.nominal.contacts[0].k_a *= 1.01;
+    let mut m3 = m2.clone();
+    m3.effects[0].1[0] *= 2.0;
+    let mut env2 = env.clone();
+    env2.k_n_per_m *= 1.5;
+    for (what, m, e, simulated) in [
+        ("the first", &m0, &env, 1),
+        ("another offset", &m1, &env, 0),
+        ("another contact stiffness", &m2, &env, 1),
+        ("another drag", &m3, &env, 1),
+        ("the first again, with another offset", &m1, &env, 0),
+        ("other scales", &m3, &env2, 1),
+    ] {
+        let (r, runs) = cached(m, e);
+        assert_eq!(r, fresh(m, e), "{what}: the residual of a fresh simulation");
+        assert_eq!(runs, simulated, "{what}: simulations run");
     }
 }

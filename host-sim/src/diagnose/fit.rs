@@ -85,7 +85,7 @@ pub struct LmResult {
     pub ssr: f64,
     /// Iterations done.
     pub iterations: usize,
-    /// Residual evaluations (simulations).
+    /// Residual evaluations (each a simulation unless the caller reuses one).
     pub evaluations: usize,
     /// Whether it stopped on the tolerance (not the iteration cap).
     pub converged: bool,

@@ -211,7 +211,8 @@ pub struct Tested {
     pub test: HeldOut,
     /// The noise model of the test (fitted on the extension's residual).
     pub noise: NoiseModel,
-    /// Simulations spent.
+    /// Model evaluations spent (simulations, or a recent simulation's reading reused: see
+    /// [`Problem::simulate_before_offset`]).
     pub evaluations: usize,
     /// The new effect's own contribution to D: the extended model with and without it, the
     /// rest as fitted (nm, every sample).
@@ -331,11 +332,12 @@ pub struct Search {
     /// The candidates the linearised screen left unpolished at each stage (stage, kind, the
     /// screen's SSR gain over the stage's model as a fraction of its SSR on the fit samples).
     pub screened_out: Vec<(usize, EffectKind, f64)>,
-    /// Evaluations of a model as the search counts them: simulations, replays of a
-    /// reading-only effect on a model's states, and recent readings reused (see
-    /// [`Problem::simulate_before_offset`]).
+    /// Evaluations of a model as the search counts them: simulations and recent readings
+    /// reused (see [`Problem::simulate_before_offset`]; a reading-only effect's replay on a
+    /// model's states is not counted).
     pub evaluations: usize,
-    /// Simulations of the recording run by the search.
+    /// Simulations of the recording run by the search (counted where they run, the
+    /// environment's included).
     pub simulations: usize,
 }
 
@@ -365,6 +367,11 @@ impl Default for SearchOptions {
 }
 
 impl Problem {
+    /// Simulations of the recording run so far by this problem and its clones.
+    pub fn simulations_run(&self) -> usize {
+        self.simulations.load(Ordering::Relaxed)
+    }
+
     /// The model's detector reading (nm) at every sample, with the states if asked.
     pub fn simulate(&self, m: &Model, env: &Env, trace: Option<&mut Trace>) -> Vec<f64> {
         let mut fx = m.build_effects(env);
@@ -521,8 +528,10 @@ impl Problem {
         y
     }
 
-    /// Residual on the fit samples only.
-    fn fit_residual(&self, m: &Model, env: &Env) -> Option<Vec<f64>> {
+    /// Residual on the fit samples (Huber's where the fit is robust), then the calibration
+    /// priors' rows ([`Problem::prior_rows`]): what the fits minimise. `None` where it is not
+    /// finite.
+    pub fn fit_residual(&self, m: &Model, env: &Env) -> Option<Vec<f64>> {
         self.fit_residual_from(&self.simulate_before_offset(m, env), m, env)
     }
 
@@ -696,7 +705,7 @@ impl Problem {
     /// A candidate's linearised screen from `base` (steps 1–2 of its fit): every shape point
     /// of its grid, then a golden section in each shape, fitted linearly (the effect's
     /// amplitudes and the base's corrections by its Jacobian `jac`) to the base's residual
-    /// `r_base`. `None` where a simulation is not finite; the simulations spent are added to
+    /// `r_base`. `None` where a simulation is not finite; the model evaluations spent are added to
     /// `evals` either way.
     pub fn screen_candidate(
         &self,
@@ -817,7 +826,7 @@ impl Problem {
     ///
     /// With `polish_below: Some(bar)` (the SSR of a fit the caller already has), a polish
     /// still above `bar.give_up` after [`GIVE_UP_AFTER`] iterations stops there, and a fit
-    /// that ends at or above `bar.ssr` is `None`. The simulations spent are added to `evals`
+    /// that ends at or above `bar.ssr` is `None`. The model evaluations spent are added to `evals`
     /// either way.
     #[allow(clippy::too_many_arguments)]
     pub fn polish_candidate(
@@ -1170,7 +1179,7 @@ impl Problem {
     /// bed, `fine_lattice_offsets`), each polished briefly from the continuum's optimum; the
     /// best two are polished with their offsets refined. It replaces the continuum when its
     /// SSR is lower by more than BIC's ln(n)·σ² per added parameter (pitch and two offsets).
-    /// Returns the simulations spent, the bed the usual search chose where the deeper one
+    /// Returns the model evaluations spent, the bed the usual search chose where the deeper one
     /// (below) replaced it, and why the bed was chosen (for the report, with its figures).
     pub(crate) fn choose_bed(
         &self,
@@ -1332,9 +1341,9 @@ impl Problem {
     /// Huber's loss at 3× the residual's sample-to-sample scatter, so that what no candidate
     /// can model does not drag the parameters of what they can.
     pub fn search(&self, opts: &SearchOptions, mut progress: impl FnMut(&str)) -> Search {
+        let simulations_before = self.simulations.load(Ordering::Relaxed);
         let inits = self.initial_nominals();
         let env0 = super::environment(self, &Model::nominal(inits[0].clone()), None);
-        let simulations_before = self.simulations.load(Ordering::Relaxed);
         let mut evaluations = 0;
         // The first start polished with the input held: the robustness check's fit, reused
         // as the nominal fit's first.
