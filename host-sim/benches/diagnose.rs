@@ -79,5 +79,12 @@ fn main() {
             println!("  {:<28} {:>7.2} s", prev.0, at - prev.1);
             prev = (name, at);
         }
+        if threads == 1 {
+            // Deterministic, unlike the times: the same on any machine.
+            println!("  simulations by phase of the search:");
+            for (phase, n) in &diag.search.phases {
+                println!("    {phase:<52} {n:>6}");
+            }
+        }
     }
 }

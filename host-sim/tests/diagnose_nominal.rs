@@ -87,6 +87,16 @@ fn a_tap_recorded_mid_oscillation_is_fitted_near_the_noise() {
             diag.rms_before_m
         );
         assert!(diag.findings.is_empty(), "named on a clean tap");
+        // Where the simulations went: every phase of the search, in order, adding up.
+        let phases = &diag.search.phases;
+        assert!(
+            phases[0].0.starts_with("nominal fit")
+                && phases
+                    .iter()
+                    .any(|(p, n)| p == "stage 1: screens" && *n > 0)
+        );
+        let total: usize = phases.iter().map(|(_, n)| n).sum();
+        assert_eq!(total, diag.search.simulations, "{phases:?}");
     }
 }
 

@@ -339,6 +339,38 @@ pub struct Search {
     /// Simulations of the recording run by the search (counted where they run, the
     /// environment's included).
     pub simulations: usize,
+    /// The simulations by phase of the search, in order (they sum to `simulations`): where
+    /// a diagnosis spends its time (`cargo bench -p visco --bench diagnose` prints them).
+    pub phases: Vec<(String, usize)>,
+}
+
+/// The simulations a search runs in each of its phases ([`Search::phases`]).
+struct Phases<'a> {
+    problem: &'a Problem,
+    /// Each phase and the count of simulations run when it began.
+    began: Vec<(String, usize)>,
+}
+
+impl<'a> Phases<'a> {
+    fn new(problem: &'a Problem, first: &str, at: usize) -> Self {
+        Phases {
+            problem,
+            began: vec![(first.to_string(), at)],
+        }
+    }
+    fn mark(&mut self, phase: impl Into<String>) {
+        self.began
+            .push((phase.into(), self.problem.simulations_run()));
+    }
+    fn finish(self) -> Vec<(String, usize)> {
+        let end = self.problem.simulations_run();
+        let ends = self.began.iter().skip(1).map(|(_, at)| *at).chain([end]);
+        self.began
+            .iter()
+            .zip(ends)
+            .map(|((name, at), next)| (name.clone(), next - at))
+            .collect()
+    }
 }
 
 /// Search options.
@@ -1342,6 +1374,7 @@ impl Problem {
     /// can model does not drag the parameters of what they can.
     pub fn search(&self, opts: &SearchOptions, mut progress: impl FnMut(&str)) -> Search {
         let simulations_before = self.simulations.load(Ordering::Relaxed);
+        let mut phases = Phases::new(self, "nominal fit: the first start", simulations_before);
         let inits = self.initial_nominals();
         let env0 = super::environment(self, &Model::nominal(inits[0].clone()), None);
         let mut evaluations = 0;
@@ -1361,6 +1394,16 @@ impl Problem {
                 };
                 progress("misfit dominates the residual: robust (Huber) fitting");
                 let mut out = robust.search(opts, progress);
+                let first = phases.finish();
+                let n_first: usize =
+                    first.iter().map(|(_, n)| n).sum::<usize>() - (out.simulations);
+                out.phases.insert(
+                    0,
+                    (
+                        "nominal fit: the first start, least squares (then robust)".into(),
+                        n_first,
+                    ),
+                );
                 out.evaluations += evaluations;
                 // The robust problem is a clone: its simulations are counted with these.
                 out.simulations = self.simulations.load(Ordering::Relaxed) - simulations_before;
@@ -1386,6 +1429,7 @@ impl Problem {
         } else {
             &[Input::Held]
         };
+        phases.mark("nominal fit: the input between samples");
         let mut input_fits: Vec<(f64, Model)> = first.into_iter().collect();
         for &inp in inputs {
             if input_fits.iter().any(|(_, m)| m.nominal.input == inp) {
@@ -1425,8 +1469,10 @@ impl Problem {
                               of the force law, which can stand in for part of an effect)"
             .to_string();
         if self.inst.dynamic() {
+            phases.mark("nominal fit: the bed");
             let (ev, displaced, why) = self.choose_bed(&mut input_fits[0], &env0, &mut progress);
             evaluations += ev;
+            phases.mark("nominal fit: the other starts, the last polish");
             displaced_bed = displaced;
             bed_reason = why;
             // A sampled smooth source is a line or a cubic between the samples, which differ
@@ -1556,6 +1602,7 @@ impl Problem {
             // The bases a candidate is fitted from: the model, and at the first stage the
             // other nominal optima.
             let mut bases: Vec<(Model, Vec<f64>, Vec<Vec<f64>>)> = Vec::new();
+            phases.mark(format!("stage {}: the bases' Jacobians", stage + 1));
             let (jac, nj) = self.jacobian(&model, &env, &r_fit);
             evaluations += nj;
             bases.push((model.clone(), r_fit.clone(), jac));
@@ -1573,6 +1620,7 @@ impl Problem {
             // machine's cores, the results in the candidates' order.
             let threads = opts.threads.clamp(1, cands.len());
             // The screen: every candidate's linearised fit from every base.
+            phases.mark(format!("stage {}: screens", stage + 1));
             let screens: Vec<(Vec<Option<Screen>>, usize)> = in_parallel(
                 &cands,
                 threads,
@@ -1708,6 +1756,7 @@ impl Problem {
                     },
                 )
             };
+            phases.mark(format!("stage {}: fits of the screen's best", stage + 1));
             let mut outcomes = fit_all(&first, None, &mut progress);
             // An outsider of the screen (whose linearised fit may understate it: a plastic
             // set moves where the contact ends) is polished from the model briefly, and fully
@@ -1725,6 +1774,7 @@ impl Problem {
                 .reduce(f64::min)
                 .or_else(|| fits(false).reduce(f64::max))
                 .unwrap_or_else(|| ssr(&bases[0].1));
+            phases.mark(format!("stage {}: fits of the outsiders", stage + 1));
             let second = fit_all(&outsiders, Some(bar), &mut progress);
             let mut kept: Vec<(usize, (Option<Tested>, usize))> =
                 first.iter().copied().zip(outcomes.drain(..)).collect();
@@ -1749,6 +1799,7 @@ impl Problem {
                 evaluations += ev;
                 results.extend(t);
             }
+            phases.mark(format!("stage {}: the ranking", stage + 1));
             // Ranked on one scale: every candidate's held-out residual whitened by one noise
             // model, that of the best fit of the stage (each test keeps its own; their gains
             // are in units of different noise models, which only agree while the residuals
@@ -1820,6 +1871,7 @@ impl Problem {
             screened_out,
             evaluations,
             simulations: self.simulations.load(Ordering::Relaxed) - simulations_before,
+            phases: phases.finish(),
         }
     }
 }
