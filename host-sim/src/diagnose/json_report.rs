@@ -213,7 +213,7 @@ pub struct Stage {
     /// The candidates left untested by the screen (first stage only): the stage fits in full
     /// the few whose linearised fit is best, and the others only where a brief polish
     /// already fits better than the best of those that passes its test (where none passes,
-    /// the worst of them).
+    /// the best of them).
     #[serde(default)]
     pub screened_out: Vec<ScreenedOut>,
 }
