@@ -93,10 +93,7 @@ fn reading_only_effects_replay_exactly_on_the_base_states() {
 #[test]
 fn the_reading_before_the_offset_does_not_depend_on_it() {
     use visco::diagnose::model::{simulate, simulate_before_offset};
-    let (rec, _) = mid_oscillation_tap(&TapProtocol::short(), 7, [0.37, 0.61]);
-    let prob = Problem::new(&rec).expect("a problem");
-    let mut model = Model::nominal(prob.initial_nominals()[0].clone());
-    let env = visco::diagnose::environment(&prob, &model, None);
+    let (prob, mut model, env) = short_tap(7);
     for kind in [EffectKind::HydrodynamicDrag, EffectKind::ThermalDrift] {
         let cand = Candidate::new(kind, &env).expect("a candidate");
         let mut v = cand.null_values();
@@ -145,10 +142,7 @@ fn the_reading_before_the_offset_does_not_depend_on_it() {
 #[test]
 fn the_fits_residuals_reuse_a_recent_simulation_only_across_the_offset() {
     use visco::diagnose::candidates::Env;
-    let (rec, _) = mid_oscillation_tap(&TapProtocol::short(), 9, [0.37, 0.61]);
-    let prob = Problem::new(&rec).expect("a problem");
-    let mut m0 = Model::nominal(prob.initial_nominals()[0].clone());
-    let env = visco::diagnose::environment(&prob, &m0, None);
+    let (prob, mut m0, env) = short_tap(9);
     let drag = Candidate::new(EffectKind::HydrodynamicDrag, &env).expect("drag");
     let mut v = drag.null_values();
     v[0] = 5.0 * drag.params[0].grid[0];
@@ -194,4 +188,13 @@ fn the_fits_residuals_reuse_a_recent_simulation_only_across_the_offset() {
         assert_eq!(r, fresh(m, e), "{what}: the residual of a fresh simulation");
         assert_eq!(runs, simulated, "{what}: simulations run");
     }
+}
+
+/// A short plant tap recorded mid-oscillation, its problem, nominal model and scales.
+fn short_tap(seed: u64) -> (Problem, Model, visco::diagnose::candidates::Env) {
+    let (rec, _) = mid_oscillation_tap(&TapProtocol::short(), seed, [0.37, 0.61]);
+    let prob = Problem::new(&rec).expect("a problem");
+    let model = Model::nominal(prob.initial_nominals()[0].clone());
+    let env = visco::diagnose::environment(&prob, &model, None);
+    (prob, model, env)
 }

@@ -499,13 +499,18 @@ fn boxed(e: Box<dyn std::error::Error>) -> String {
     e.to_string()
 }
 
-/// `cargo xtask qemu-smoke`: boots the QEMU image, runs `steps` timer-driven loop samples in
-/// each mode (synthetic ADC input, a 25 ms tap so that DIVE finishes one), checks the
+/// `cargo xtask qemu-smoke`: boots the QEMU image (under `-icount shift=0`), runs `steps`
+/// timer-driven loop samples in each mode (synthetic ADC input, a 25 ms tap so that DIVE finishes one), checks the
 /// counters, the records and the defmt log, and exits cleanly.
 pub fn qemu_smoke(steps: u32) -> Result<()> {
     ensure_tools()?;
     let elf = build(Board::Qemu, &[])?;
-    let (mut link, defmt) = spawn(&elf, None, "smoke")?;
+    // Under `-icount` (virtual time by instructions), as every other QEMU run here: in real
+    // time a host that stalls QEMU's CPU thread lets timer periods pile up, the loop
+    // interrupts then run back to back and starve the estimator's lower priority, and the
+    // firmware rightly counts a late result (seen once on this shared machine under load,
+    // session 24) — a fault of the host, not of the firmware, which this check must not fail on.
+    let (mut link, defmt) = spawn(&elf, Some(0), "smoke")?;
     let mut fw = FirmwareConfig::default();
     fw.set("dive.tap_s", 0.025).map_err(boxed)?;
     fw.send(&mut link).map_err(boxed)?;
