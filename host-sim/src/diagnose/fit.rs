@@ -279,68 +279,211 @@ fn qr_least_squares(a: DMatrix<f64>, mut b: DVector<f64>) -> Option<DVector<f64>
 const RIDGE: f64 = 1e-12;
 
 /// Linear least squares `min ‖y − X·β‖` with `β_j ≥ 0` where `nonneg[j]`; columns given as
-/// vectors. Returns β and the residual sum of squares `‖y − X·β‖²`.
-///
-/// Lawson and Hanson's active-set NNLS (Solving Least Squares Problems, 1974, ch. 23),
-/// generalised to columns without a constraint (always in the passive set): a constrained
-/// coefficient enters when the gradient asks for it and leaves when an interpolation step
-/// brings it to zero, and can come back later — the true constrained optimum, not the
-/// "drop the first negative and re-solve" approximation. Each subproblem is a Householder QR
-/// of the unit-norm columns (so a column's scale does not matter) with the [`RIDGE`] rows;
-/// a zero or non-finite column gets β = 0.
+/// vectors. Returns β and the residual sum of squares `‖y − X·β‖²`. The general form of
+/// [`LeastSquaresBase::solve`], with no base columns.
 pub fn linear_least_squares(cols: &[Vec<f64>], y: &[f64], nonneg: &[bool]) -> (Vec<f64>, f64) {
-    let p = cols.len();
-    let m = y.len();
-    let norms: Vec<f64> = cols
-        .iter()
-        .map(|c| c.iter().map(|v| v * v).sum::<f64>().sqrt())
-        .collect();
-    let usable: Vec<bool> = norms.iter().map(|n| n.is_finite() && *n > 0.0).collect();
-    // [X·N⁻¹; √RIDGE·I] and [y; 0]: unit-norm columns, ridge rows below.
-    let a = DMatrix::from_fn(m + p, p, |i, j| {
-        if !usable[j] {
-            0.0
-        } else if i < m {
-            cols[j].get(i).copied().unwrap_or(0.0) / norms[j]
-        } else if i - m == j {
-            RIDGE.sqrt()
+    LeastSquaresBase::new(&[], y).solve(cols, nonneg)
+}
+
+/// Columns of a linear least-squares problem factored once, to which problems add a few
+/// columns of their own: a screen's base Jacobian (a dozen columns of 100 000 rows), beside
+/// which each of ~100 grid points brings one or two amplitude columns. The base's Householder
+/// QR (nalgebra) is taken once; a problem then costs its own columns' projections on the
+/// base's Q and a QR of what is left of them, not a QR of every column (measured: most of a
+/// diagnosis's linear algebra was the screens' repeated QRs of the same Jacobian).
+///
+/// Every column is scaled to unit norm (so a column's scale does not matter) and given its
+/// [`RIDGE`] row. With Q = [Q₁ Q₂] orthonormal over the columns' span and R the combined
+/// triangle, `‖y − A·x‖² = ‖Qᵀy − R·x‖² + ‖y⊥‖²` (y⊥: what no column reaches), so the
+/// active-set iterations run on the small triangle alone.
+pub struct LeastSquaresBase {
+    y: Vec<f64>,
+    /// Each base column's norm; a zero or non-finite column takes no part (β = 0).
+    norms: Vec<f64>,
+    /// Indices of the base columns that take part.
+    usable: Vec<usize>,
+    /// Thin Q of the usable unit-norm base columns over the data rows and their ridge rows
+    /// (row m + k for the k-th usable column).
+    q: DMatrix<f64>,
+    /// R of the same.
+    r: DMatrix<f64>,
+    /// Q₁ᵀy.
+    g: DVector<f64>,
+    /// y − Q₁Q₁ᵀy over the same rows.
+    y_perp: DVector<f64>,
+}
+
+/// Euclidean norm.
+fn norm(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+impl LeastSquaresBase {
+    /// Factors the base columns `cols` (each as long as `y`; their coefficients are not
+    /// constrained) for data `y`.
+    pub fn new(cols: &[Vec<f64>], y: &[f64]) -> Self {
+        let m = y.len();
+        let norms: Vec<f64> = cols.iter().map(|c| norm(c)).collect();
+        let usable: Vec<usize> = (0..cols.len())
+            .filter(|&j| norms[j].is_finite() && norms[j] > 0.0)
+            .collect();
+        let p = usable.len();
+        let a = DMatrix::from_fn(m + p, p, |i, k| {
+            let j = usable[k];
+            if i < m {
+                cols[j].get(i).copied().unwrap_or(0.0) / norms[j]
+            } else if i - m == k {
+                RIDGE.sqrt()
+            } else {
+                0.0
+            }
+        });
+        let mut yb = DVector::zeros(m + p);
+        yb.rows_mut(0, m).copy_from_slice(y);
+        let (q, r) = if p > 0 {
+            let qr = a.qr();
+            (qr.q(), qr.r())
         } else {
-            0.0
+            (DMatrix::zeros(m, 0), DMatrix::zeros(0, 0))
+        };
+        let g = q.tr_mul(&yb);
+        let y_perp = &yb - &q * &g;
+        LeastSquaresBase {
+            y: y.to_vec(),
+            norms,
+            usable,
+            q,
+            r,
+            g,
+            y_perp,
         }
-    });
-    let mut yb = DVector::zeros(m + p);
-    for (i, v) in y.iter().enumerate() {
-        yb[i] = *v;
     }
+
+    /// The data y.
+    pub fn y(&self) -> &[f64] {
+        &self.y
+    }
+
+    /// The number of base columns.
+    pub fn columns(&self) -> usize {
+        self.norms.len()
+    }
+
+    /// `min ‖y − [X_base X]·β‖` with `β_j ≥ 0` where `nonneg[j]` for the added columns `cols`
+    /// (the base's coefficients are free): β over the base's columns then these, and the
+    /// residual sum of squares over the data rows.
+    ///
+    /// Lawson and Hanson's active-set NNLS (Solving Least Squares Problems, 1974, ch. 23),
+    /// generalised to columns without a constraint (always in the passive set): a constrained
+    /// coefficient enters when the gradient asks for it and leaves when an interpolation step
+    /// brings it to zero, and can come back later — the true constrained optimum, not the
+    /// "drop the first negative and re-solve" approximation. Each subproblem is a QR of the
+    /// combined triangle's passive columns.
+    pub fn solve(&self, cols: &[Vec<f64>], nonneg: &[bool]) -> (Vec<f64>, f64) {
+        let m = self.y.len();
+        let (nb, pb) = (self.norms.len(), self.usable.len());
+        let rows_b = m + pb;
+        let extra_norms: Vec<f64> = cols.iter().map(|c| norm(c)).collect();
+        let extra: Vec<usize> = (0..cols.len())
+            .filter(|&j| extra_norms[j].is_finite() && extra_norms[j] > 0.0)
+            .collect();
+        let pe = extra.len();
+        let p = pb + pe;
+        // The added columns less their projections on Q₁ (twice where the first pass removed
+        // most of a column, Daniel–Gragg–Kaufman–Stewart's test), over the data rows, the
+        // base's ridge rows and then their own ridge rows.
+        let mut b = DMatrix::zeros(rows_b + pe, pe);
+        let mut c = DMatrix::zeros(pb, pe);
+        for (k, &j) in extra.iter().enumerate() {
+            let mut a = DVector::zeros(rows_b);
+            for (i, v) in cols[j].iter().take(m).enumerate() {
+                a[i] = v / extra_norms[j];
+            }
+            if pb > 0 {
+                let before = a.norm();
+                let mut ck = self.q.tr_mul(&a);
+                a -= &self.q * &ck;
+                if a.norm() < std::f64::consts::FRAC_1_SQRT_2 * before {
+                    let again = self.q.tr_mul(&a);
+                    a -= &self.q * &again;
+                    ck += again;
+                }
+                c.set_column(k, &ck);
+            }
+            b.view_mut((0, k), (rows_b, 1)).copy_from(&a);
+            b[(rows_b + k, k)] = RIDGE.sqrt();
+        }
+        let (g2, r2, rest) = if pe > 0 {
+            let qr = b.qr();
+            let q2 = qr.q();
+            let mut yp = DVector::zeros(rows_b + pe);
+            yp.rows_mut(0, rows_b).copy_from(&self.y_perp);
+            let g2 = q2.tr_mul(&yp);
+            let rest = (&yp - &q2 * &g2).norm_squared();
+            (g2, qr.r(), rest)
+        } else {
+            (
+                DVector::zeros(0),
+                DMatrix::zeros(0, 0),
+                self.y_perp.norm_squared(),
+            )
+        };
+        // The combined triangle [R₁ C; 0 R₂] and Qᵀy.
+        let mut r = DMatrix::zeros(p, p);
+        r.view_mut((0, 0), (pb, pb)).copy_from(&self.r);
+        r.view_mut((0, pb), (pb, pe)).copy_from(&c);
+        r.view_mut((pb, pb), (pe, pe)).copy_from(&r2);
+        let mut g = DVector::zeros(p);
+        g.rows_mut(0, pb).copy_from(&self.g);
+        g.rows_mut(pb, pe).copy_from(&g2);
+        let constrained: Vec<bool> = (0..p)
+            .map(|k| k >= pb && nonneg.get(extra[k - pb]).copied().unwrap_or(false))
+            .collect();
+        // A gradient component below this is rounding: 10·ε·max(m, p)·‖y‖ (scipy's nnls uses
+        // the same form of tolerance).
+        let tol = 10.0 * f64::EPSILON * (m.max(nb + cols.len()) as f64) * norm(&self.y);
+        let x = active_set(&r, &g, &constrained, tol);
+        // ‖y − A·x‖² less the ridge rows' share.
+        let fit = (&g - &r * &x).norm_squared() + rest - RIDGE * x.norm_squared();
+        let mut beta = vec![0.0; nb + cols.len()];
+        for (k, &j) in self.usable.iter().enumerate() {
+            beta[j] = x[k] / self.norms[j];
+        }
+        for (k, &j) in extra.iter().enumerate() {
+            beta[nb + j] = x[pb + k] / extra_norms[j];
+        }
+        (beta, fit.max(0.0))
+    }
+}
+
+/// The active-set iterations of [`LeastSquaresBase::solve`] on the triangle `r` and `g` =
+/// Qᵀy: x minimising `‖g − R·x‖` with `x_k ≥ 0` where `constrained[k]`.
+fn active_set(r: &DMatrix<f64>, g: &DVector<f64>, constrained: &[bool], tol: f64) -> DVector<f64> {
+    let p = r.ncols();
     // Solve on the passive set `set`, zeros elsewhere.
     let solve_on = |set: &[usize]| -> Option<Vec<f64>> {
         let mut x = vec![0.0; p];
         if set.is_empty() {
             return Some(x);
         }
-        let sub = a.select_columns(set.iter());
-        let z = qr_least_squares(sub, yb.clone())?;
+        let z = qr_least_squares(r.select_columns(set.iter()), g.clone())?;
         for (k, &j) in set.iter().enumerate() {
             x[j] = z[k];
         }
         Some(x)
     };
     // Start: every unconstrained column passive, every constrained one at zero (feasible).
-    let mut passive: Vec<usize> = (0..p).filter(|&j| usable[j] && !nonneg[j]).collect();
+    let mut passive: Vec<usize> = (0..p).filter(|&j| !constrained[j]).collect();
     let mut x = solve_on(&passive).unwrap_or_else(|| vec![0.0; p]);
-    let y_norm = yb.norm();
-    // A gradient component below this is rounding: 10·ε·max(m, p)·‖y‖ (scipy's nnls uses the
-    // same form of tolerance).
-    let tol = 10.0 * f64::EPSILON * (m.max(p) as f64) * y_norm;
     // Coefficients that entered and were refused at once (a step of zero length): not offered
     // again until x moves, so the loop cannot cycle on a degenerate column.
     let mut refused = vec![false; p];
     // Each outer step adds one coefficient; Lawson and Hanson bound it by 3p in practice.
     for _ in 0..3 * p + 3 {
-        let resid = &yb - &a * DVector::from_column_slice(&x);
-        let w = a.tr_mul(&resid);
+        // The gradient Aᵀ(y − A·x) = Rᵀ(Qᵀy − R·x).
+        let w = r.tr_mul(&(g - r * DVector::from_column_slice(&x)));
         let enter = (0..p)
-            .filter(|&j| usable[j] && nonneg[j] && !refused[j] && !passive.contains(&j))
+            .filter(|&j| constrained[j] && !refused[j] && !passive.contains(&j))
             .max_by(|&i, &j| w[i].total_cmp(&w[j]));
         let Some(t) = enter.filter(|&t| w[t] > tol) else {
             break;
@@ -357,7 +500,7 @@ pub fn linear_least_squares(cols: &[Vec<f64>], y: &[f64], nonneg: &[bool]) -> (V
             let blocking: Vec<usize> = passive
                 .iter()
                 .copied()
-                .filter(|&j| nonneg[j] && z[j] <= 0.0)
+                .filter(|&j| constrained[j] && z[j] <= 0.0)
                 .collect();
             if blocking.is_empty() {
                 moved = true;
@@ -381,9 +524,9 @@ pub fn linear_least_squares(cols: &[Vec<f64>], y: &[f64], nonneg: &[bool]) -> (V
                 moved = true;
             }
             x[first] = 0.0;
-            passive.retain(|&j| !(nonneg[j] && (j == first || x[j] <= 0.0)));
+            passive.retain(|&j| !(constrained[j] && (j == first || x[j] <= 0.0)));
             for j in 0..p {
-                if !passive.contains(&j) && nonneg[j] {
+                if !passive.contains(&j) && constrained[j] {
                     x[j] = 0.0;
                 }
             }
@@ -394,20 +537,7 @@ pub fn linear_least_squares(cols: &[Vec<f64>], y: &[f64], nonneg: &[bool]) -> (V
             refused[t] = true;
         }
     }
-    let beta: Vec<f64> = (0..p)
-        .map(|j| if usable[j] { x[j] / norms[j] } else { 0.0 })
-        .collect();
-    let mut s = 0.0;
-    for (i, v) in y.iter().enumerate() {
-        let mut e = *v;
-        for (j, b) in beta.iter().enumerate() {
-            if *b != 0.0 {
-                e -= b * cols[j].get(i).copied().unwrap_or(0.0);
-            }
-        }
-        s += e * e;
-    }
-    (beta, s)
+    DVector::from_vec(x)
 }
 
 #[cfg(test)]
@@ -552,6 +682,74 @@ mod tests {
             assert!(close(*g, w) || (w == 0.0 && *g == 0.0), "{b:?} vs {want:?}");
         }
         assert!(close(s, 3.28684136177426183e+01), "SSR {s}");
+    }
+
+    /// A factored base with columns added (a screen's path) gives what the same columns
+    /// solved together give: 100 random problems of 400 rows, six base columns spanning four
+    /// decades and two added non-negative ones, one of them 1e-4 from the base's span in
+    /// relative terms — β to 1e-7 of the larger of
+    /// its value and its column's scale ‖y‖/‖X_j‖ (the near-repeated column's coefficient and
+    /// those that compensate it carry ε·κ² ~ 1e-8) and the SSR to 1e-9 relative; the added coefficients meet the
+    /// Karush–Kuhn–Tucker conditions.
+    #[test]
+    fn a_factored_base_with_columns_added_solves_as_one() {
+        let mut rng = crate::plant::rng::NormalRng::new(9);
+        let m = 400;
+        for case in 0..100 {
+            let base: Vec<Vec<f64>> = (0..6)
+                .map(|j| {
+                    (0..m)
+                        .map(|_| rng.normal() * 10f64.powi(j % 5 - 2))
+                        .collect()
+                })
+                .collect();
+            let mut extra: Vec<Vec<f64>> =
+                vec![(0..m).map(|_| rng.normal() * 3.0).collect(), vec![0.0; m]];
+            // The second added column: the base's first two columns plus a 1e-4 part of
+            // its own.
+            for i in 0..m {
+                extra[1][i] = base[0][i] * 40.0 - base[1][i] * 0.3 + 1e-4 * rng.normal();
+            }
+            let y: Vec<f64> = (0..m)
+                .map(|i| {
+                    rng.normal() + 0.5 * base[2][i]
+                        - if case % 2 == 0 { 0.8 } else { -0.8 } * extra[0][i]
+                })
+                .collect();
+            let nonneg = [true, true];
+            let (split, s_split) = LeastSquaresBase::new(&base, &y).solve(&extra, &nonneg);
+            let all: Vec<Vec<f64>> = base.iter().chain(&extra).cloned().collect();
+            let flags: Vec<bool> = [false; 6].iter().chain(&nonneg).copied().collect();
+            let (whole, s_whole) = linear_least_squares(&all, &y, &flags);
+            assert!(
+                (s_split - s_whole).abs() <= 1e-9 * s_whole,
+                "case {case}: SSR {s_split} vs {s_whole}"
+            );
+            let y_norm = norm(&y);
+            for (j, col) in all.iter().enumerate() {
+                let scale = y_norm / norm(col);
+                assert!(
+                    (split[j] - whole[j]).abs() <= 1e-7 * scale.max(whole[j].abs()),
+                    "case {case}: β_{j} {} vs {}",
+                    split[j],
+                    whole[j]
+                );
+            }
+            let resid: Vec<f64> = (0..m)
+                .map(|i| y[i] - all.iter().zip(&split).map(|(c, b)| b * c[i]).sum::<f64>())
+                .collect();
+            for (k, col) in extra.iter().enumerate() {
+                let b = split[6 + k];
+                let grad: f64 = col.iter().zip(&resid).map(|(a, r)| a * r).sum();
+                let tol = 1e-6 * norm(col) * y_norm;
+                assert!(b >= 0.0, "case {case}: β {b}");
+                if b > 0.0 {
+                    assert!(grad.abs() <= tol, "case {case}: gradient {grad:e} at β {b}");
+                } else {
+                    assert!(grad <= tol, "case {case}: gradient {grad:e} would raise β");
+                }
+            }
+        }
     }
 
     /// 200 random problems (columns spanning four decades, most with some unconstrained

@@ -235,6 +235,15 @@ impl BedGeometry {
             usize::from(d > 0.0)
         }
     }
+    /// [`Self::engaged`]`(δ)` where it is likely `hint` (the count a moment ago), which it
+    /// updates: two comparisons instead of the search where the hint holds.
+    #[inline]
+    pub fn engaged_near(&self, d: f64, hint: &mut usize) -> usize {
+        if !self.engages(d, *hint) {
+            *hint = self.engaged(d);
+        }
+        *hint
+    }
     /// Whether `n` elements are engaged at apex depth δ: [`Self::engaged`]`(δ) == n` bit for
     /// bit without its search, from the two sags that bound the count (the lattice's event
     /// search asks it of one count ~40 times per event).
@@ -475,6 +484,8 @@ pub fn simulate_before_offset(
         v = nom.v0;
     }
     let mut cache = PropagatorCache::default();
+    // The lattice's count at the last context: the next one's is mostly the same.
+    let mut hint = 0;
     // The effective base (after the effects' piezo hooks) of the previous two rows: the
     // `HeldFromSample` convention holds the previous row's over the interval, after the step
     // from the one before it.
@@ -488,7 +499,7 @@ pub fn simulate_before_offset(
         let dt = interval_before(data, i);
         let u_cmd = data.u[i];
         if i > 0 {
-            let ctx0 = (!bare).then(|| context(ct, geo, data.t[i - 1], dt, z, v, u_cmd));
+            let ctx0 = (!bare).then(|| context(ct, geo, data.t[i - 1], dt, z, v, u_cmd, &mut hint));
             let mut u_eff = u_cmd;
             let mut f_eff = 0.0;
             if let Some(ctx0) = &ctx0 {
@@ -544,7 +555,7 @@ pub fn simulate_before_offset(
         // `HeldFromSample` it has just stepped there).
         let mut d = u_eff_prev - z;
         if !bare || trace.is_some() {
-            let ctx = context(ct, geo, data.t[i], dt, z, v, u_cmd);
+            let ctx = context(ct, geo, data.t[i], dt, z, v, u_cmd, &mut hint);
             for e in effects.iter() {
                 d = e.measured_deflection_nm(&ctx, d);
             }
@@ -579,11 +590,13 @@ pub fn reading_with(
 ) -> Vec<f64> {
     let n = data.len().min(trace.v.len()).min(base.len());
     let geo = &BedGeometry::new(nom.bed, inst.r_tip);
+    let mut hint = 0;
     (0..n)
         .map(|i| {
             let ct = nom.contacts[data.unit[i].min(nom.contacts.len() - 1)];
             let dt = interval_before(data, i);
-            let ctx = context(ct, geo, data.t[i], dt, trace.z[i], trace.v[i], data.u[i]);
+            let (z, v) = (trace.z[i], trace.v[i]);
+            let ctx = context(ct, geo, data.t[i], dt, z, v, data.u[i], &mut hint);
             let d = effect.measured_deflection_nm(&ctx, base[i] - nom.offset);
             effect.end_of_step(&ctx);
             d + nom.offset
@@ -601,7 +614,9 @@ fn interval_before(data: &Data, i: usize) -> f64 {
     }
 }
 
-/// What the effects see at time `t` with the tip at (Z, Ż) and the commanded U.
+/// What the effects see at time `t` with the tip at (Z, Ż) and the commanded U; `hint` is
+/// the lattice's count at the caller's last context ([`BedGeometry::engaged_near`]).
+#[allow(clippy::too_many_arguments)]
 #[inline]
 fn context(
     ct: Contact,
@@ -611,11 +626,18 @@ fn context(
     z: f64,
     v: f64,
     u_cmd: f64,
+    hint: &mut usize,
 ) -> EffectContext {
     let d = ct.h - z;
     // No element is engaged at δ ≤ 0 (every sag is ≥ 0), nor for the continuum: as `force`
     // and `engaged` would say.
-    let (vol, area, engaged) = if d > 0.0 { geo.at(d) } else { (0.0, 0.0, 0) };
+    let (vol, area, engaged) = if d > 0.0 {
+        let n = geo.engaged_near(d, hint);
+        let (vol, area) = geo.at_count(d, n);
+        (vol, area, n)
+    } else {
+        (0.0, 0.0, 0)
+    };
     let (fe, fd) = if d > 0.0 {
         (ct.k_a * vol, -ct.c_a * area * v)
     } else {
@@ -751,13 +773,14 @@ fn input_polynomial(
 impl InputPoly {
     /// The polynomial re-expanded about s0 in local time τ = (s − s0)·dt: (b0, b1, b2, b3).
     #[inline]
-    fn local(&self, s0: f64, dt: f64) -> [f64; 4] {
+    fn local(&self, s0: f64, inv_dt: f64) -> [f64; 4] {
         let [c0, c1, c2, c3] = self.c;
         let p = c0 + s0 * (c1 + s0 * (c2 + s0 * c3));
         let d1 = c1 + s0 * (2.0 * c2 + 3.0 * s0 * c3);
         let d2 = c2 + 3.0 * s0 * c3;
-        // One division: the three of d1/Δt, d2/Δt², c3/Δt³ were a fair share of a piece.
-        let r = dt.recip();
+        // One division per distinct Δt (the caller's): the three of d1/Δt, d2/Δt², c3/Δt³
+        // were a fair share of a piece.
+        let r = inv_dt;
         let r2 = r * r;
         [p, d1 * r, d2 * r2, c3 * (r2 * r)]
     }
@@ -768,6 +791,8 @@ impl InputPoly {
 /// a sin/cos pair) is most of a step's cost. A few entries, the least recently used
 /// replaced: an engagement event's pieces (one-off τ) would otherwise evict the full
 /// interval's propagator of the count before and after it. Exact keys, so the result is the uncached one.
+/// Beside them, what else one simulation reuses from piece to piece: 1/Δt and the lattice's
+/// last count.
 #[derive(Default)]
 struct PropagatorCache {
     entries: [CacheEntry; PROPAGATOR_CACHE],
@@ -776,6 +801,10 @@ struct PropagatorCache {
     last: usize,
     /// M and 1/M of the last miss (one simulation has one M).
     mass: (f64, f64),
+    /// An interval Δt and 1/Δt (a recording's intervals are mostly one).
+    interval: (f64, f64),
+    /// The lattice's count at the last piece's start: the next one's is mostly the same.
+    engaged: usize,
 }
 
 /// One key (c, k, τ) of [`PropagatorCache`], its propagator, 1/k (the particular solution's
@@ -794,6 +823,15 @@ struct CacheEntry {
 const PROPAGATOR_CACHE: usize = 8;
 
 impl PropagatorCache {
+    /// 1/Δt, the division made once per distinct interval (bit for bit the same).
+    #[inline]
+    fn inv_interval(&mut self, dt: f64) -> f64 {
+        if self.interval.0 != dt {
+            self.interval = (dt, dt.recip());
+        }
+        self.interval.1
+    }
+
     /// The propagator of (c, k, τ) at mass `m` and 1/k.
     #[inline]
     fn get(&mut self, m: f64, c: f64, k: f64, tau: f64) -> (Propagator, f64) {
@@ -848,7 +886,12 @@ impl Dyn<'_> {
         cache: &mut PropagatorCache,
     ) -> (f64, f64) {
         // A held input jumps at the start: an impulse C·Δu/M through the base damping.
-        let v = v + self.c_base * poly.jump / self.m;
+        // (No division where there is no step: every smooth convention, most held samples.)
+        let v = if poly.jump != 0.0 {
+            v + self.c_base * poly.jump / self.m
+        } else {
+            v
+        };
         if self.geo.is_lattice() {
             return self.interval_lattice(z, v, poly, f_eff, dt, cache);
         }
@@ -898,7 +941,7 @@ impl Dyn<'_> {
         let (mut zz, mut vv, mut s) = (z, v, 0.0);
         for _ in 0..LATTICE_EVENTS_MAX {
             // The count at the piece's start: its force's and the event search's.
-            let n0 = self.geo.engaged(h - zz);
+            let n0 = self.geo.engaged_near(h - zz, &mut cache.engaged);
             let (z1, v1) = self.piece(zz, vv, poly, s, 1.0, f_eff, dt, Some(n0), cache);
             if self.ct.k_a <= 0.0 && self.ct.c_a <= 0.0 {
                 return (z1, v1);
@@ -992,7 +1035,7 @@ impl Dyn<'_> {
         };
         let (k, c, m) = (self.k + kt, self.c + ct, self.m);
         // Force K·u + C·u̇ + held terms as a cubic in local time: a0 + a1·τ + a2·τ² + a3·τ³.
-        let [b0, b1, b2, b3] = poly.local(s0, dt);
+        let [b0, b1, b2, b3] = poly.local(s0, cache.inv_interval(dt));
         let (kb, cb) = (self.k_base, self.c_base);
         let a0 = kb * b0 + cb * b1 + f_hold + f_eff;
         let a1 = kb * b1 + 2.0 * cb * b2;

@@ -37,7 +37,7 @@
 //! the nominal model explains, the probability of naming anything is at most α.
 
 use super::candidates::{Candidate, Env};
-use super::fit::{levenberg_marquardt, linear_least_squares, ssr, LmOptions, Param};
+use super::fit::{levenberg_marquardt, ssr, LeastSquaresBase, LmOptions, Param};
 use super::model::{reading_with, simulate, simulate_before_offset, Bed, Input, Nominal, Trace};
 use super::noise::{held_out_test, HeldOut, NoiseModel, MAX_ORDER};
 use super::problem::Problem;
@@ -744,9 +744,10 @@ impl Problem {
         base: &Model,
         env: &Env,
         cand: &Candidate,
-        (r_base, jac): (&[f64], &[Vec<f64>]),
+        jac: &LeastSquaresBase,
         evals: &mut usize,
     ) -> Option<Screen> {
+        let r_base = jac.y();
         // An effect that acts only on the reading leaves the states alone: its grid's
         // readings replay on the base's states instead of simulating (one traced simulation).
         let mut base_trace = Trace::default();
@@ -772,14 +773,10 @@ impl Problem {
             }
             grid_points = next;
         }
-        let nonneg: Vec<bool> = jac
-            .iter()
-            .map(|_| false)
-            .chain(amp_idx.iter().map(|&j| cand.params[j].nonneg))
-            .collect();
+        let nonneg: Vec<bool> = amp_idx.iter().map(|&j| cand.params[j].nonneg).collect();
         // The linearised fit at shape `g`: (SSR, amplitudes, base corrections).
         let lin_fit = |g: &[f64], evals: &mut usize| -> Option<(f64, Vec<f64>, Vec<f64>)> {
-            let mut cols: Vec<Vec<f64>> = jac.to_vec();
+            let mut cols: Vec<Vec<f64>> = Vec::with_capacity(amp_idx.len());
             for &j in &amp_idx {
                 let mut v = null.clone();
                 for (k, &js) in shape_idx.iter().enumerate() {
@@ -805,8 +802,8 @@ impl Problem {
                 col.resize(r_base.len(), 0.0);
                 cols.push(col);
             }
-            let (beta, s) = linear_least_squares(&cols, r_base, &nonneg);
-            let nb = jac.len();
+            let (beta, s) = jac.solve(&cols, &nonneg);
+            let nb = jac.columns();
             Some((s, beta[nb..].to_vec(), beta[..nb].to_vec()))
         };
         let mut ranked: Vec<Ranked> = Vec::new();
@@ -1601,11 +1598,15 @@ impl Problem {
             r_fit.extend(self.prior_rows(&model, &env));
             // The bases a candidate is fitted from: the model, and at the first stage the
             // other nominal optima.
-            let mut bases: Vec<(Model, Vec<f64>, Vec<Vec<f64>>)> = Vec::new();
+            let mut bases: Vec<(Model, Vec<f64>, LeastSquaresBase)> = Vec::new();
             phases.mark(format!("stage {}: the bases' Jacobians", stage + 1));
             let (jac, nj) = self.jacobian(&model, &env, &r_fit);
             evaluations += nj;
-            bases.push((model.clone(), r_fit.clone(), jac));
+            bases.push((
+                model.clone(),
+                r_fit.clone(),
+                LeastSquaresBase::new(&jac, &r_fit),
+            ));
             if stage == 0 {
                 for (_, alt) in starts.iter().skip(1) {
                     let Some(r_alt) = self.fit_residual(alt, &env) else {
@@ -1613,7 +1614,8 @@ impl Problem {
                     };
                     let (j_alt, nj) = self.jacobian(alt, &env, &r_alt);
                     evaluations += nj + 1;
-                    bases.push((alt.clone(), r_alt, j_alt));
+                    let factored = LeastSquaresBase::new(&j_alt, &r_alt);
+                    bases.push((alt.clone(), r_alt, factored));
                 }
             }
             // Each candidate's screen and fit are independent of the others': they run on the
@@ -1628,9 +1630,7 @@ impl Problem {
                     let mut evals = 0;
                     let s = bases
                         .iter()
-                        .map(|(b, r_b, j_b)| {
-                            self.screen_candidate(b, &env, cand, (r_b, j_b), &mut evals)
-                        })
+                        .map(|(b, _, j_b)| self.screen_candidate(b, &env, cand, j_b, &mut evals))
                         .collect();
                     (s, evals)
                 },
