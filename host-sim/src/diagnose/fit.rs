@@ -380,6 +380,7 @@ impl LeastSquaresBase {
     /// "drop the first negative and re-solve" approximation. Each subproblem is a QR of the
     /// combined triangle's passive columns.
     pub fn solve(&self, cols: &[Vec<f64>], nonneg: &[bool]) -> (Vec<f64>, f64) {
+        debug_assert_eq!(nonneg.len(), cols.len(), "one flag per added column");
         let m = self.y.len();
         let (nb, pb) = (self.norms.len(), self.usable.len());
         let rows_b = m + pb;
@@ -685,41 +686,43 @@ mod tests {
     }
 
     /// A factored base with columns added (a screen's path) gives what the same columns
-    /// solved together give: 100 random problems of 400 rows, six base columns spanning four
-    /// decades and two added non-negative ones, one of them 1e-4 from the base's span in
-    /// relative terms — β to 1e-7 of the larger of
-    /// its value and its column's scale ‖y‖/‖X_j‖ (the near-repeated column's coefficient and
-    /// those that compensate it carry ε·κ² ~ 1e-8) and the SSR to 1e-9 relative; the added coefficients meet the
+    /// solved together give: 100 random problems of 400 rows, seven base columns (a zero one
+    /// first, then six spanning four decades) and three added ones (a zero one, first; a
+    /// non-negative one whose constraint binds in every other problem; an unconstrained one
+    /// 1e-4 from the base's span in relative terms). β agrees to 1e-7 of the larger of its
+    /// value and its column's scale ‖y‖/‖X_j‖ (the near-repeated column's coefficient and
+    /// those that compensate it carry ε·κ²), the SSR to 1e-9 relative and to the data's own
+    /// sum of squares at β, the zero columns' β are 0, and the added coefficients meet the
     /// Karush–Kuhn–Tucker conditions.
     #[test]
     fn a_factored_base_with_columns_added_solves_as_one() {
         let mut rng = crate::plant::rng::NormalRng::new(9);
         let m = 400;
         for case in 0..100 {
-            let base: Vec<Vec<f64>> = (0..6)
-                .map(|j| {
+            let mut base: Vec<Vec<f64>> = vec![vec![0.0; m]];
+            for j in 0..6 {
+                base.push(
                     (0..m)
                         .map(|_| rng.normal() * 10f64.powi(j % 5 - 2))
-                        .collect()
-                })
-                .collect();
-            let mut extra: Vec<Vec<f64>> =
-                vec![(0..m).map(|_| rng.normal() * 3.0).collect(), vec![0.0; m]];
-            // The second added column: the base's first two columns plus a 1e-4 part of
-            // its own.
-            for i in 0..m {
-                extra[1][i] = base[0][i] * 40.0 - base[1][i] * 0.3 + 1e-4 * rng.normal();
+                        .collect(),
+                );
             }
+            let mut extra: Vec<Vec<f64>> = vec![vec![0.0; m]];
+            extra.push((0..m).map(|_| rng.normal() * 3.0).collect());
+            // The last added column: two of the base's columns plus a 1e-4 part of its own.
+            extra.push(
+                (0..m)
+                    .map(|i| base[1][i] * 40.0 - base[2][i] * 0.3 + 1e-4 * rng.normal())
+                    .collect(),
+            );
+            let sign = if case % 2 == 0 { -0.8 } else { 0.8 };
             let y: Vec<f64> = (0..m)
-                .map(|i| {
-                    rng.normal() + 0.5 * base[2][i]
-                        - if case % 2 == 0 { 0.8 } else { -0.8 } * extra[0][i]
-                })
+                .map(|i| rng.normal() + 0.5 * base[3][i] + sign * extra[1][i])
                 .collect();
-            let nonneg = [true, true];
+            let nonneg = [false, true, false];
             let (split, s_split) = LeastSquaresBase::new(&base, &y).solve(&extra, &nonneg);
             let all: Vec<Vec<f64>> = base.iter().chain(&extra).cloned().collect();
-            let flags: Vec<bool> = [false; 6].iter().chain(&nonneg).copied().collect();
+            let flags: Vec<bool> = [false; 7].iter().chain(&nonneg).copied().collect();
             let (whole, s_whole) = linear_least_squares(&all, &y, &flags);
             assert!(
                 (s_split - s_whole).abs() <= 1e-9 * s_whole,
@@ -727,7 +730,11 @@ mod tests {
             );
             let y_norm = norm(&y);
             for (j, col) in all.iter().enumerate() {
-                let scale = y_norm / norm(col);
+                let scale = if norm(col) > 0.0 {
+                    y_norm / norm(col)
+                } else {
+                    0.0
+                };
                 assert!(
                     (split[j] - whole[j]).abs() <= 1e-7 * scale.max(whole[j].abs()),
                     "case {case}: β_{j} {} vs {}",
@@ -735,20 +742,38 @@ mod tests {
                     whole[j]
                 );
             }
+            assert!(split[0] == 0.0 && split[7] == 0.0, "case {case}: {split:?}");
             let resid: Vec<f64> = (0..m)
                 .map(|i| y[i] - all.iter().zip(&split).map(|(c, b)| b * c[i]).sum::<f64>())
                 .collect();
-            for (k, col) in extra.iter().enumerate() {
-                let b = split[6 + k];
-                let grad: f64 = col.iter().zip(&resid).map(|(a, r)| a * r).sum();
-                let tol = 1e-6 * norm(col) * y_norm;
-                assert!(b >= 0.0, "case {case}: β {b}");
-                if b > 0.0 {
-                    assert!(grad.abs() <= tol, "case {case}: gradient {grad:e} at β {b}");
-                } else {
-                    assert!(grad <= tol, "case {case}: gradient {grad:e} would raise β");
-                }
+            let direct: f64 = resid.iter().map(|r| r * r).sum();
+            assert!(
+                (s_split - direct).abs() <= 1e-9 * direct,
+                "case {case}: SSR {s_split} vs the data's {direct}"
+            );
+            let grad = |col: &[f64]| col.iter().zip(&resid).map(|(a, r)| a * r).sum::<f64>();
+            let tol = |col: &[f64]| 1e-6 * norm(col) * y_norm;
+            let (b, g) = (split[8], grad(&extra[1]));
+            assert!(b >= 0.0, "case {case}: β {b}");
+            if b > 0.0 {
+                assert!(
+                    g.abs() <= tol(&extra[1]),
+                    "case {case}: gradient {g:e} at β {b}"
+                );
+            } else {
+                assert!(
+                    g <= tol(&extra[1]),
+                    "case {case}: gradient {g:e} would raise β"
+                );
             }
+            // Where the constraint binds (the data want a negative coefficient) β is 0.
+            if sign > 0.0 {
+                assert!(b > 0.0, "case {case}: β {b}");
+            } else {
+                assert_eq!(b, 0.0, "case {case}");
+            }
+            let g = grad(&extra[2]);
+            assert!(g.abs() <= tol(&extra[2]), "case {case}: gradient {g:e}");
         }
     }
 

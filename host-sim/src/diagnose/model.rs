@@ -801,8 +801,8 @@ struct PropagatorCache {
     last: usize,
     /// M and 1/M of the last miss (one simulation has one M).
     mass: (f64, f64),
-    /// An interval Δt and 1/Δt (a recording's intervals are mostly one).
-    interval: (f64, f64),
+    /// The last interval Δt (its bits) and 1/Δt: a recording's intervals are mostly one.
+    interval: Option<(u64, f64)>,
     /// The lattice's count at the last piece's start: the next one's is mostly the same.
     engaged: usize,
 }
@@ -823,13 +823,17 @@ struct CacheEntry {
 const PROPAGATOR_CACHE: usize = 8;
 
 impl PropagatorCache {
-    /// 1/Δt, the division made once per distinct interval (bit for bit the same).
+    /// 1/Δt, divided again only where the interval changes (bit for bit the same).
     #[inline]
     fn inv_interval(&mut self, dt: f64) -> f64 {
-        if self.interval.0 != dt {
-            self.interval = (dt, dt.recip());
+        match self.interval {
+            Some((bits, r)) if bits == dt.to_bits() => r,
+            _ => {
+                let r = dt.recip();
+                self.interval = Some((dt.to_bits(), r));
+                r
+            }
         }
-        self.interval.1
     }
 
     /// The propagator of (c, k, τ) at mass `m` and 1/k.
@@ -886,7 +890,8 @@ impl Dyn<'_> {
         cache: &mut PropagatorCache,
     ) -> (f64, f64) {
         // A held input jumps at the start: an impulse C·Δu/M through the base damping.
-        // (No division where there is no step: every smooth convention, most held samples.)
+        // (No division where there is no step: every smooth convention, most held samples;
+        // the same bits but for the sign of a zero velocity.)
         let v = if poly.jump != 0.0 {
             v + self.c_base * poly.jump / self.m
         } else {
