@@ -135,7 +135,8 @@ fn the_reading_before_the_offset_does_not_depend_on_it() {
     }
 }
 
-/// The fits' residuals (`Problem::fit_residual`) come from the thread's recent simulations
+/// The fits' residuals (`Problem::fit_residual`, and `Problem::residual` over every sample)
+/// come from the thread's recent simulations
 /// where the model differs from one of them in the detector offset alone, and are then what a
 /// fresh simulation gives, bit for bit; a model that differs in anything else (a contact's
 /// stiffness, an effect's value, the scales the effects are built with) is simulated anew.
@@ -147,9 +148,16 @@ fn the_fits_residuals_reuse_a_recent_simulation_only_across_the_offset() {
     let mut v = drag.null_values();
     v[0] = 5.0 * drag.params[0].grid[0];
     m0.effects.push((drag, v));
-    // A fresh simulation's residual on the fit samples, with the prior rows.
+    // A fresh simulation's residual on the fit samples, with the prior rows (the model's own
+    // simulation, outside the problem and its cache).
     let fresh = |m: &Model, env: &Env| -> Vec<u64> {
-        let r = prob.residual(m, env);
+        let mut fx = m.build_effects(env);
+        let sim =
+            visco::diagnose::model::simulate(&prob.inst, &m.nominal, &mut fx, &prob.data, None);
+        let r: Vec<f64> = prob.data.d.iter().zip(&sim).map(|(a, b)| a - b).collect();
+        // `Problem::residual` (every sample) goes through the cache too.
+        let through: Vec<u64> = prob.residual(m, env).iter().map(|x| x.to_bits()).collect();
+        assert_eq!(through, r.iter().map(|x| x.to_bits()).collect::<Vec<u64>>());
         let mut out: Vec<f64> = r
             .iter()
             .zip(&prob.fit)

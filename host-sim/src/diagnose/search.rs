@@ -411,10 +411,18 @@ impl Problem {
         simulate(&self.inst, &m.nominal, &mut fx, &self.data, trace)
     }
 
-    /// Recorded minus simulated D (nm), every sample.
+    /// Recorded minus simulated D (nm), every sample: through this thread's recent
+    /// simulations (the model a fit has just evaluated is mostly one of them), the offset
+    /// added as [`simulate`] adds it, so bit for bit a fresh simulation's.
     pub fn residual(&self, m: &Model, env: &Env) -> Vec<f64> {
-        let sim = self.simulate(m, env, None);
-        self.data.d.iter().zip(&sim).map(|(a, b)| a - b).collect()
+        let before = self.simulate_before_offset(m, env);
+        let offset = m.nominal.offset;
+        self.data
+            .d
+            .iter()
+            .zip(before.iter())
+            .map(|(a, y0)| a - (y0 + offset))
+            .collect()
     }
 
     /// The parameters of `m` to fit: the nominal ones, and each effect's amplitudes and smooth
