@@ -1606,15 +1606,12 @@ impl Problem {
             r_fit.extend(self.prior_rows(&model, &env));
             // The bases a candidate is fitted from: the model, and at the first stage the
             // other nominal optima.
-            let mut bases: Vec<(Model, Vec<f64>, LeastSquaresBase)> = Vec::new();
+            // Each with its Jacobian factored, which holds its residual ([`LeastSquaresBase::y`]).
+            let mut bases: Vec<(Model, LeastSquaresBase)> = Vec::new();
             phases.mark(format!("stage {}: the bases' Jacobians", stage + 1));
             let (jac, nj) = self.jacobian(&model, &env, &r_fit);
             evaluations += nj;
-            bases.push((
-                model.clone(),
-                r_fit.clone(),
-                LeastSquaresBase::new(&jac, &r_fit),
-            ));
+            bases.push((model.clone(), LeastSquaresBase::new(&jac, &r_fit)));
             if stage == 0 {
                 for (_, alt) in starts.iter().skip(1) {
                     let Some(r_alt) = self.fit_residual(alt, &env) else {
@@ -1622,8 +1619,7 @@ impl Problem {
                     };
                     let (j_alt, nj) = self.jacobian(alt, &env, &r_alt);
                     evaluations += nj + 1;
-                    let factored = LeastSquaresBase::new(&j_alt, &r_alt);
-                    bases.push((alt.clone(), r_alt, factored));
+                    bases.push((alt.clone(), LeastSquaresBase::new(&j_alt, &r_alt)));
                 }
             }
             // Each candidate's screen and fit are independent of the others': they run on the
@@ -1638,7 +1634,7 @@ impl Problem {
                     let mut evals = 0;
                     let s = bases
                         .iter()
-                        .map(|(b, _, j_b)| self.screen_candidate(b, &env, cand, j_b, &mut evals))
+                        .map(|(b, j_b)| self.screen_candidate(b, &env, cand, j_b, &mut evals))
                         .collect();
                     (s, evals)
                 },
@@ -1680,21 +1676,21 @@ impl Problem {
                 let mut fitted: Option<(Model, f64, usize)> = None;
                 // The other nominal optima are polished from only while they can beat the
                 // best fit so far ([`GIVE_UP_AFTER`]).
-                for (bi, (b, r_b, _)) in bases.iter().enumerate() {
+                for (bi, (b, j_b)) in bases.iter().enumerate() {
                     let Some(screen) = &screens[ci].0[bi] else {
                         continue;
                     };
                     let below = if bi == 0 {
                         outsider_bar.map(|ssr| Bar { ssr, give_up: ssr })
                     } else {
-                        let ssr = fitted.as_ref().map_or(ssr(&bases[0].1), |f| f.1);
+                        let ssr = fitted.as_ref().map_or(ssr(bases[0].1.y()), |f| f.1);
                         Some(Bar {
                             ssr,
                             give_up: GIVE_UP_MARGIN * ssr,
                         })
                     };
                     let mut ev = 0;
-                    let f = self.polish_candidate(b, &env, cand, r_b, screen, below, &mut ev);
+                    let f = self.polish_candidate(b, &env, cand, j_b.y(), screen, below, &mut ev);
                     evals += ev;
                     if let Some((m, s)) = f {
                         if fitted.as_ref().is_none_or(|g| s < g.1) {
@@ -1783,12 +1779,12 @@ impl Problem {
             let bar = fits(true)
                 .reduce(f64::min)
                 .or_else(|| fits(false).reduce(f64::min))
-                .unwrap_or_else(|| ssr(&bases[0].1));
+                .unwrap_or_else(|| ssr(bases[0].1.y()));
             phases.mark(format!("stage {}: fits of the outsiders", stage + 1));
             let second = fit_all(&outsiders, Some(bar), &mut progress);
             let mut kept: Vec<(usize, (Option<Tested>, usize))> =
                 first.iter().copied().zip(outcomes.drain(..)).collect();
-            let base_ssr = ssr(&bases[0].1);
+            let base_ssr = ssr(bases[0].1.y());
             for (&ci, out) in outsiders.iter().zip(second) {
                 if out.0.is_none() {
                     screened_out.push((stage, cands[ci].kind, (base_ssr - linear[ci]) / base_ssr));
