@@ -699,10 +699,6 @@ pub struct Controller<T> {
     now: ModeNow<T>,
     /// Status bits of the result adopted this sample.
     adopted: u32,
-    /// The status word's phase bits and `RECORD_READY`, set where the phase or the record
-    /// changes ([`Self::set_phase`], [`Self::set_record`]): one load per sample instead of
-    /// testing the record and shifting the phase.
-    status_hold: u32,
     guard: Guard<T>,
     /// Z = U − D of the last sample (the tip position, not prefiltered: the prefilters run in
     /// the estimator task).
@@ -1065,7 +1061,6 @@ impl<T: SineTable> Controller<T> {
             now,
             phase: Phase::Idle,
             hot: Hot::Stopped,
-            status_hold: (Phase::Idle as u32) << status::PHASE_SHIFT,
             y_settled: false,
             u,
             u_code,
@@ -1078,6 +1073,10 @@ impl<T: SineTable> Controller<T> {
             tick: 0,
             z: u,
             contact: ContactDetector::new(T::ZERO),
+            // Its held status bits (`Excitation::held_mut`): the phase bits of `Phase::Idle`
+            // (0), no record, not sounding. They are set where the phase or the record changes
+            // ([`Self::set_phase`], [`Self::set_record`]): one load per sample instead of
+            // testing the record and shifting the phase.
             exc: Excitation::default(),
             dive,
             sve,
@@ -1168,7 +1167,7 @@ impl<T: SineTable> Controller<T> {
     #[inline]
     pub fn take_record(&mut self) -> Option<Record<T>> {
         let (to_m, to_si) = (self.p.to_m, self.p.damping_to_si);
-        self.status_hold &= !status::RECORD_READY;
+        *self.exc.held_mut() &= !status::RECORD_READY;
         self.record.take().map(|r| r.scaled(to_m, to_si))
     }
 
@@ -1176,7 +1175,7 @@ impl<T: SineTable> Controller<T> {
     /// named `_m` hold nm, `offset_n` nN, `c_ns_per_m` nN·µs/nm): what a fixed-point caller
     /// reads, as no Q format holds the SI factors (see [`crate::fixed`]).
     pub fn take_record_internal(&mut self) -> Option<Record<T>> {
-        self.status_hold &= !status::RECORD_READY;
+        *self.exc.held_mut() &= !status::RECORD_READY;
         self.record.take()
     }
 
@@ -1254,8 +1253,8 @@ impl<T: SineTable> Controller<T> {
     #[inline(always)]
     fn set_phase(&mut self, p: Phase) {
         self.phase = p;
-        self.status_hold = (self.status_hold & !(0xFF << status::PHASE_SHIFT))
-            | ((p as u32) << status::PHASE_SHIFT);
+        let held = self.exc.held_mut();
+        *held = (*held & !(0xFF << status::PHASE_SHIFT)) | ((p as u32) << status::PHASE_SHIFT);
         self.update_hot();
     }
 
@@ -1304,7 +1303,7 @@ impl<T: SineTable> Controller<T> {
     #[inline(always)]
     fn set_record(&mut self, r: Record<T>) {
         self.record = Some(r);
-        self.status_hold |= status::RECORD_READY;
+        *self.exc.held_mut() |= status::RECORD_READY;
     }
 
     /// Samples handed over since the block's start or its last restart, up to the step whose
@@ -1605,11 +1604,9 @@ impl<T: SineTable> Controller<T> {
         }
         self.u = u;
         self.u_code = u_code;
-        if self.exc.sounding() {
-            st |= status::EXCITING;
-        }
-        // The phase and RECORD_READY, kept as they change (`set_phase`, `set_record`).
-        st |= self.status_hold;
+        // The phase and RECORD_READY, kept as they change (`set_phase`, `set_record`), and
+        // EXCITING, kept by the excitation with its envelope.
+        st |= self.exc.held();
         StepOut {
             u_m: u * self.p.to_m,
             u_code,
