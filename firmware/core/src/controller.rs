@@ -433,8 +433,11 @@ struct Params<T> {
     dec_sve: u32,
 }
 
-/// The running mode's per-sample constants (see [`Controller::set_mode`]).
+/// The running mode's per-sample constants (see [`Controller::set_mode`]). `repr(C)` with
+/// `last` first: it follows [`Controller::tick`], and the block clock loads both with one
+/// `ldrd`.
 #[derive(Clone, Copy, Debug)]
+#[repr(C)]
 struct ModeNow<T> {
     /// Samples per estimator block minus one (saturated): the block clock's last tick, so
     /// that `tick + 1 ≥ dec` is one comparison, and `dec > 1` a test for zero.
@@ -442,9 +445,6 @@ struct ModeNow<T> {
     /// The input check's `spike` and `hold` ([`GuardParams`]).
     spike: T,
     hold: u32,
-    /// The DIVE force limit's stride minus one (0 or 1; 0 in SVE): a sample whose block
-    /// clock tick has these bits set is between two of its checks.
-    check_mask: u32,
     /// SVE with blocks and the decoupled regressor.
     sve_blocks: bool,
     /// `sve_blocks`, the surface held, the pixel's sums begun (their base set) and y settled
@@ -691,6 +691,12 @@ pub struct Controller<T> {
     y: T,
     x_code: i32,
     y_code: i32,
+    /// The running mode's DIVE force limit stride minus one (0 or 1; 0 in SVE): a sample
+    /// whose block clock tick has these bits set is between two of its checks. Set with
+    /// [`Self::now`] by [`Self::set_mode`]; kept here, just before `tick`, so that the DIVE
+    /// paths' test loads both with one `ldrd` (issue 14, round 18), as the block clock loads
+    /// `tick` and `now.last`.
+    check_mask: u32,
     /// The block clock: counts loop samples, 0 at the first sample of a block.
     tick: u32,
     /// What the running mode (DIVE when stopped) sets per sample: its block length and its
@@ -994,7 +1000,6 @@ impl<T: SineTable> Controller<T> {
             last: p.dec_dive.saturating_sub(1),
             spike: p.guard_dive.spike,
             hold: p.guard_dive.hold,
-            check_mask: p.force_check - 1,
             sve_blocks: false,
             sve_fast: false,
         };
@@ -1070,6 +1075,8 @@ impl<T: SineTable> Controller<T> {
             y_code,
             y_quantized: (y, p.xy_dac.quantize(y).0, p.xy_dac.quantize(y).1),
             guard: Guard::default(),
+            // Stopped: DIVE's, as `now`.
+            check_mask: p.force_check - 1,
             tick: 0,
             z: u,
             contact: ContactDetector::new(T::ZERO),
@@ -1335,12 +1342,12 @@ impl<T: SineTable> Controller<T> {
             last: dec.saturating_sub(1),
             spike: gp.spike,
             hold: gp.hold,
-            check_mask: check - 1,
             sve_blocks: mode == Some(Mode::Sve)
                 && dec > 1
                 && matches!(self.p.sve.regressor, SveRegressor::Decoupled),
             sve_fast: false,
         };
+        self.check_mask = check - 1;
         // The block count across a change between blocks and blocks of one (`handed`): the
         // blocks stop with the samples handed so far carried (up to this step, or through the
         // last one when between steps); they start again from the clock's next step when
@@ -1988,7 +1995,7 @@ impl<T: SineTable> Controller<T> {
     /// the DIVE paths only: the SVE ones do not need it).
     #[inline(always)]
     fn force_check(&self) -> bool {
-        self.tick & self.now.check_mask == 0
+        self.tick & self.check_mask == 0
     }
 
     /// The DIVE force check (Indent and Dwell): the static force from the low-passed
