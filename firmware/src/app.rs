@@ -17,7 +17,7 @@ use visco_firmware::core_glue::BlockResult;
 use visco_firmware::core_glue::{self, CoreCommand, LoopCore, StagedConfig};
 use visco_firmware::loop_body::{
     tone_ends, BlockBuf, CommandSlot, Counters, EstimatorState, Item, QueueLink, SampleBlock,
-    ToneBuf, BLOCK_BUFFERS, BUFFER_SLOTS, ESTIMATOR_DEPTH, TELEMETRY_DEPTH, TONE_CHUNKS,
+    Shared, ToneBuf, BLOCK_BUFFERS, BUFFER_SLOTS, ESTIMATOR_DEPTH, TELEMETRY_DEPTH, TONE_CHUNKS,
     TONE_SLOTS,
 };
 use visco_protocol::{
@@ -70,11 +70,27 @@ impl<T> IsrCell<T> {
     }
 }
 
-pub static LOOP: IsrCell<board::Loop> = IsrCell::new();
+/// The loop state and what it shares with the main loop, in one static: the loop interrupt
+/// addresses the command slot and the counters from the state's own base register (issue 14,
+/// round 18: one load of an address less for each, every sample). The state and the shared
+/// part are disjoint fields, so the main loop's atomic accesses to the shared part never
+/// touch the state the interrupt holds mutably.
+#[repr(C)]
+pub struct LoopCell {
+    /// The loop state, owned by the loop interrupt.
+    pub state: IsrCell<board::Loop>,
+    /// The command slot and the counters.
+    pub shared: Shared,
+}
+
+pub static LOOP: LoopCell = LoopCell {
+    state: IsrCell::new(),
+    shared: Shared::new(),
+};
 /// The estimator task, owned by the estimator interrupt.
 pub static ESTIMATOR: IsrCell<EstimatorState> = IsrCell::new();
-static COMMANDS: CommandSlot = CommandSlot::new();
-pub static COUNTERS: Counters = Counters::new();
+static COMMANDS: &CommandSlot = &LOOP.shared.commands;
+pub static COUNTERS: &Counters = &LOOP.shared.counters;
 
 /// The loop interrupt body: every board's loop interrupt handler calls this after
 /// acknowledging its interrupt source.
@@ -85,7 +101,7 @@ pub fn loop_interrupt() {
         panic!("canary");
     }
     // SAFETY: called from the loop interrupt only, which runs once `run` has set `LOOP`.
-    unsafe { LOOP.get_set() }.on_sample();
+    unsafe { LOOP.state.get_set() }.on_sample(&LOOP.shared);
 }
 
 /// The estimator interrupt body (lower priority than the loop's): the blocks the loop
@@ -102,7 +118,7 @@ fn with_both<R>(f: impl FnOnce(&mut board::Loop, &mut EstimatorState) -> R) -> O
     board::mask_loop();
     board::mask_estimator();
     // SAFETY: both interrupts are masked, and thread mode cannot preempt them.
-    let r = match unsafe { (LOOP.get(), ESTIMATOR.get()) } {
+    let r = match unsafe { (LOOP.state.get(), ESTIMATOR.get()) } {
         (Some(l), Some(e)) => Some(f(l, e)),
         _ => None,
     };
@@ -115,7 +131,7 @@ fn with_both<R>(f: impl FnOnce(&mut board::Loop, &mut EstimatorState) -> R) -> O
 pub fn with_loop<R>(f: impl FnOnce(&mut board::Loop) -> R) -> Option<R> {
     board::mask_loop();
     // SAFETY: the loop interrupt is masked, and thread mode cannot preempt it.
-    let r = unsafe { LOOP.get() }.map(f);
+    let r = unsafe { LOOP.state.get() }.map(f);
     board::unmask_loop();
     r
 }
@@ -274,10 +290,10 @@ pub fn run() -> ! {
         free_rx,
         result_rx,
         board::pend_estimator,
-        &COUNTERS,
+        COUNTERS,
         tone_link,
     );
-    let state = board::make_loop(&mut b, adc, core, link, tel_tx, &COMMANDS, &COUNTERS);
+    let state = board::make_loop(&mut b, adc, core, link, tel_tx);
     board::mask_estimator();
     // SAFETY: the estimator interrupt is masked.
     unsafe {
@@ -292,7 +308,7 @@ pub fn run() -> ! {
     board::unmask_estimator();
     board::mask_loop();
     // SAFETY: the loop interrupt is masked.
-    unsafe { LOOP.set(state) };
+    unsafe { LOOP.state.set(state) };
     board::unmask_loop();
 
     let mut tx = Tx::new(board::take_link(&mut b));

@@ -552,6 +552,30 @@ impl CommandSlot {
     }
 }
 
+/// What the loop interrupt shares with the main loop: the command slot (main → loop) and the
+/// counters (loop → main). Passed to [`LoopState::on_sample`] by the caller, not held by
+/// reference: the firmware keeps it in the same static as the loop state (`app::LOOP`), so
+/// that the loop addresses both from one base register (issue 14, round 18: through
+/// references held in the state, the command byte and the sample counter each took a load of
+/// their address first, every sample).
+#[derive(Debug, Default)]
+pub struct Shared {
+    /// Main → loop commands.
+    pub commands: CommandSlot,
+    /// Shared counters.
+    pub counters: Counters,
+}
+
+impl Shared {
+    /// Empty, all zero.
+    pub const fn new() -> Self {
+        Self {
+            commands: CommandSlot::new(),
+            counters: Counters::new(),
+        }
+    }
+}
+
 /// Everything the loop interrupt owns. `repr(C)` with the core first: its hot fields stay
 /// within immediate-offset reach of the structure's base (see `visco_core::Controller`).
 #[repr(C)]
@@ -570,10 +594,6 @@ pub struct LoopState<A, U, X, C, E> {
     in_flight: u32,
     /// Loop → main telemetry.
     pub telemetry: Producer<'static, Item>,
-    /// Main → loop commands.
-    pub commands: &'static CommandSlot,
-    /// Shared counters.
-    pub counters: &'static Counters,
     /// Emit a Step item per sample.
     pub per_sample: bool,
     /// The sample counter's value when the source was last set: the index of a sample in
@@ -592,8 +612,6 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
         core: C,
         estimator: E,
         telemetry: Producer<'static, Item>,
-        commands: &'static CommandSlot,
-        counters: &'static Counters,
     ) -> Self {
         Self {
             adc,
@@ -603,8 +621,6 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
             estimator,
             in_flight: 0,
             telemetry,
-            commands,
-            counters,
             per_sample: false,
             index_base: 0,
             // Out of any DAC's range: the first step always writes the lateral outputs.
@@ -612,15 +628,17 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
         }
     }
 
-    /// One loop sample. Called from the loop interrupt only.
+    /// One loop sample, with the command slot and the counters shared with the main loop.
+    /// Called from the loop interrupt only.
     #[inline(always)]
-    pub fn on_sample(&mut self) {
+    pub fn on_sample(&mut self, shared: &Shared) {
+        let counters = &shared.counters;
         let core = &mut self.core;
-        if let Some(cmd) = self.commands.take() {
+        if let Some(cmd) = shared.commands.take() {
             core.apply_command(cmd);
         }
         let Some(d) = self.adc.sample() else {
-            bump(&self.counters.starved);
+            bump(&counters.starved);
             return;
         };
         if core.block_due() {
@@ -632,14 +650,14 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
                 }
                 // One still out is late (a steady lag of a block counts at every close).
                 if self.in_flight > 0 {
-                    bump(&self.counters.estimator_late);
+                    bump(&counters.estimator_late);
                 }
             }
             // The block closes at the start of this sample: straight into the queue.
             let estimator = &mut self.estimator;
             match core.close_block(|b| estimator.send(b)) {
                 Some(true) => self.in_flight += 1,
-                Some(false) => bump(&self.counters.blocks_dropped),
+                Some(false) => bump(&counters.blocks_dropped),
                 None => {}
             }
         }
@@ -655,10 +673,10 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
         if self.per_sample {
             let estimates = self.core.estimate_array();
             let [u_m, x_m, y_m] = self.core.outputs_m(&out);
-            let index = self.index();
+            let index = self.index(counters);
             emit(
                 &mut self.telemetry,
-                self.counters,
+                counters,
                 Item::Step(StepFrame {
                     index,
                     d_m: Number::to_metres(d),
@@ -673,18 +691,18 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
             );
         }
         if out.status & RECORD_READY != 0 {
-            let index = self.index();
+            let index = self.index(counters);
             if let Some(r) = self.core.take_record(index) {
-                emit(&mut self.telemetry, self.counters, Item::Record(r));
+                emit(&mut self.telemetry, counters, Item::Record(r));
             }
         }
-        bump(&self.counters.samples);
+        bump(&counters.samples);
     }
 
     /// The index of the sample being stepped (since the source was last set).
     #[inline(always)]
-    pub fn index(&self) -> u32 {
-        self.counters
+    pub fn index(&self, counters: &Counters) -> u32 {
+        counters
             .samples
             .load(Ordering::Relaxed)
             .wrapping_sub(self.index_base)
@@ -700,8 +718,8 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
     }
 
     /// Restarts the sample index at 0 (a new source).
-    pub fn reset_index(&mut self) {
-        self.index_base = self.counters.samples.load(Ordering::Relaxed);
+    pub fn reset_index(&mut self, counters: &Counters) {
+        self.index_base = counters.samples.load(Ordering::Relaxed);
     }
 }
 
@@ -872,8 +890,6 @@ mod tests {
     fn free_lever<E: EstimatorLink>(
         n: usize,
         link: impl FnOnce(EstimatorTask) -> E,
-        cmd: &'static CommandSlot,
-        counters: &'static Counters,
     ) -> (
         LoopState<Fed, Words, Xy, crate::core_glue::ActiveCore, E>,
         heapless::spsc::Consumer<'static, Item>,
@@ -889,38 +905,31 @@ mod tests {
             built.core,
             link(built.task),
             tp,
-            cmd,
-            counters,
         );
         (st, tc)
     }
 
     #[test]
     fn steps_counts_and_reports_drops() {
-        static CMD: CommandSlot = CommandSlot::new();
-        static COUNTERS: Counters = Counters::new();
+        static SHARED: Shared = Shared::new();
+        let (cmd, counters) = (&SHARED.commands, &SHARED.counters);
         // Free cantilever: D = 0; the core moves to the first tap, then approaches.
         let n = 3000;
-        let (mut st, mut tc) = free_lever(
-            n,
-            |task| Inline(task, None, Default::default()),
-            &CMD,
-            &COUNTERS,
-        );
+        let (mut st, mut tc) = free_lever(n, |task| Inline(task, None, Default::default()));
         st.per_sample = true;
-        CMD.post(CoreCommand::Stop);
-        CMD.post(CoreCommand::Start(Mode::Dive)); // the latest intent wins
+        cmd.post(CoreCommand::Stop);
+        cmd.post(CoreCommand::Start(Mode::Dive)); // the latest intent wins
         for _ in 0..n + 1 {
-            st.on_sample();
+            st.on_sample(&SHARED);
         }
-        assert_eq!(COUNTERS.samples.load(Ordering::Relaxed), n as u32);
-        assert_eq!(st.index(), n as u32);
-        st.reset_index();
-        assert_eq!(st.index(), 0);
-        assert_eq!(COUNTERS.starved.load(Ordering::Relaxed), 1);
+        assert_eq!(counters.samples.load(Ordering::Relaxed), n as u32);
+        assert_eq!(st.index(counters), n as u32);
+        st.reset_index(counters);
+        assert_eq!(st.index(counters), 0);
+        assert_eq!(counters.starved.load(Ordering::Relaxed), 1);
         // One Step item per sample, 64 fit: the rest is dropped and counted.
         assert_eq!(
-            COUNTERS.telemetry_dropped.load(Ordering::Relaxed),
+            counters.telemetry_dropped.load(Ordering::Relaxed),
             n as u32 - TELEMETRY_DEPTH as u32
         );
         let mut k = 0;
@@ -937,15 +946,15 @@ mod tests {
         assert_eq!(st.xy_out.0.len(), 1);
         assert_eq!(st.core.running_mode(), Some(Mode::Dive));
         // The task ran at once: no block close found a result still out.
-        assert_eq!(COUNTERS.estimator_late.load(Ordering::Relaxed), 0);
+        assert_eq!(counters.estimator_late.load(Ordering::Relaxed), 0);
     }
 
     /// The task a block late (each result released by the next hand-over): every close but
     /// the first finds a result still out, and counts it; the blocks are not lost.
     #[test]
     fn a_late_estimator_is_counted_at_every_close() {
-        static CMD: CommandSlot = CommandSlot::new();
-        static COUNTERS: Counters = Counters::new();
+        static SHARED: Shared = Shared::new();
+        let (cmd, counters) = (&SHARED.commands, &SHARED.counters);
         struct Lagging {
             inner: Inline,
             held: Option<BlockResult>,
@@ -971,24 +980,19 @@ mod tests {
             }
         }
         let n = 3000;
-        let (mut st, _tc) = free_lever(
-            n,
-            |task| Lagging {
-                inner: Inline(task, None, Default::default()),
-                held: None,
-                out: None,
-                sent: 0,
-            },
-            &CMD,
-            &COUNTERS,
-        );
-        CMD.post(CoreCommand::Start(Mode::Dive));
+        let (mut st, _tc) = free_lever(n, |task| Lagging {
+            inner: Inline(task, None, Default::default()),
+            held: None,
+            out: None,
+            sent: 0,
+        });
+        cmd.post(CoreCommand::Start(Mode::Dive));
         for _ in 0..n {
-            st.on_sample();
+            st.on_sample(&SHARED);
         }
         let sent = st.estimator.sent;
         assert!(sent > 50, "{sent} blocks");
-        assert_eq!(COUNTERS.estimator_late.load(Ordering::Relaxed), sent - 1);
-        assert_eq!(COUNTERS.blocks_dropped.load(Ordering::Relaxed), 0);
+        assert_eq!(counters.estimator_late.load(Ordering::Relaxed), sent - 1);
+        assert_eq!(counters.blocks_dropped.load(Ordering::Relaxed), 0);
     }
 }

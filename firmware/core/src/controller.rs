@@ -433,8 +433,11 @@ struct Params<T> {
     dec_sve: u32,
 }
 
-/// The running mode's per-sample constants (see [`Controller::set_mode`]).
+/// The running mode's per-sample constants (see [`Controller::set_mode`]). `repr(C)` with
+/// `last` first: it follows [`Controller::tick`], and the block clock loads both with one
+/// `ldrd`.
 #[derive(Clone, Copy, Debug)]
+#[repr(C)]
 struct ModeNow<T> {
     /// Samples per estimator block minus one (saturated): the block clock's last tick, so
     /// that `tick + 1 ≥ dec` is one comparison, and `dec > 1` a test for zero.
@@ -442,9 +445,6 @@ struct ModeNow<T> {
     /// The input check's `spike` and `hold` ([`GuardParams`]).
     spike: T,
     hold: u32,
-    /// The DIVE force limit's stride minus one (0 or 1; 0 in SVE): a sample whose block
-    /// clock tick has these bits set is between two of its checks.
-    check_mask: u32,
     /// SVE with blocks and the decoupled regressor.
     sve_blocks: bool,
     /// `sve_blocks`, the surface held, the pixel's sums begun (their base set) and y settled
@@ -691,6 +691,12 @@ pub struct Controller<T> {
     y: T,
     x_code: i32,
     y_code: i32,
+    /// The running mode's DIVE force limit stride minus one (0 or 1; 0 in SVE): a sample
+    /// whose block clock tick has these bits set is between two of its checks. Set with
+    /// [`Self::now`] by [`Self::set_mode`]; kept here, just before `tick`, so that the DIVE
+    /// paths' test loads both with one `ldrd` (issue 14, round 18), as the block clock loads
+    /// `tick` and `now.last`.
+    check_mask: u32,
     /// The block clock: counts loop samples, 0 at the first sample of a block.
     tick: u32,
     /// What the running mode (DIVE when stopped) sets per sample: its block length and its
@@ -699,10 +705,6 @@ pub struct Controller<T> {
     now: ModeNow<T>,
     /// Status bits of the result adopted this sample.
     adopted: u32,
-    /// The status word's phase bits and `RECORD_READY`, set where the phase or the record
-    /// changes ([`Self::set_phase`], [`Self::set_record`]): one load per sample instead of
-    /// testing the record and shifting the phase.
-    status_hold: u32,
     guard: Guard<T>,
     /// Z = U − D of the last sample (the tip position, not prefiltered: the prefilters run in
     /// the estimator task).
@@ -998,7 +1000,6 @@ impl<T: SineTable> Controller<T> {
             last: p.dec_dive.saturating_sub(1),
             spike: p.guard_dive.spike,
             hold: p.guard_dive.hold,
-            check_mask: p.force_check - 1,
             sve_blocks: false,
             sve_fast: false,
         };
@@ -1065,7 +1066,6 @@ impl<T: SineTable> Controller<T> {
             now,
             phase: Phase::Idle,
             hot: Hot::Stopped,
-            status_hold: (Phase::Idle as u32) << status::PHASE_SHIFT,
             y_settled: false,
             u,
             u_code,
@@ -1075,9 +1075,15 @@ impl<T: SineTable> Controller<T> {
             y_code,
             y_quantized: (y, p.xy_dac.quantize(y).0, p.xy_dac.quantize(y).1),
             guard: Guard::default(),
+            // Stopped: DIVE's, as `now`.
+            check_mask: p.force_check - 1,
             tick: 0,
             z: u,
             contact: ContactDetector::new(T::ZERO),
+            // Its held status bits (`Excitation::held_mut`): the phase bits of `Phase::Idle`
+            // (0), no record, not sounding. They are set where the phase or the record changes
+            // ([`Self::set_phase`], [`Self::set_record`]): one load per sample instead of
+            // testing the record and shifting the phase.
             exc: Excitation::default(),
             dive,
             sve,
@@ -1168,7 +1174,7 @@ impl<T: SineTable> Controller<T> {
     #[inline]
     pub fn take_record(&mut self) -> Option<Record<T>> {
         let (to_m, to_si) = (self.p.to_m, self.p.damping_to_si);
-        self.status_hold &= !status::RECORD_READY;
+        *self.exc.held_mut() &= !status::RECORD_READY;
         self.record.take().map(|r| r.scaled(to_m, to_si))
     }
 
@@ -1176,7 +1182,7 @@ impl<T: SineTable> Controller<T> {
     /// named `_m` hold nm, `offset_n` nN, `c_ns_per_m` nN·µs/nm): what a fixed-point caller
     /// reads, as no Q format holds the SI factors (see [`crate::fixed`]).
     pub fn take_record_internal(&mut self) -> Option<Record<T>> {
-        self.status_hold &= !status::RECORD_READY;
+        *self.exc.held_mut() &= !status::RECORD_READY;
         self.record.take()
     }
 
@@ -1254,8 +1260,8 @@ impl<T: SineTable> Controller<T> {
     #[inline(always)]
     fn set_phase(&mut self, p: Phase) {
         self.phase = p;
-        self.status_hold = (self.status_hold & !(0xFF << status::PHASE_SHIFT))
-            | ((p as u32) << status::PHASE_SHIFT);
+        let held = self.exc.held_mut();
+        *held = (*held & !(0xFF << status::PHASE_SHIFT)) | ((p as u32) << status::PHASE_SHIFT);
         self.update_hot();
     }
 
@@ -1304,7 +1310,7 @@ impl<T: SineTable> Controller<T> {
     #[inline(always)]
     fn set_record(&mut self, r: Record<T>) {
         self.record = Some(r);
-        self.status_hold |= status::RECORD_READY;
+        *self.exc.held_mut() |= status::RECORD_READY;
     }
 
     /// Samples handed over since the block's start or its last restart, up to the step whose
@@ -1336,12 +1342,12 @@ impl<T: SineTable> Controller<T> {
             last: dec.saturating_sub(1),
             spike: gp.spike,
             hold: gp.hold,
-            check_mask: check - 1,
             sve_blocks: mode == Some(Mode::Sve)
                 && dec > 1
                 && matches!(self.p.sve.regressor, SveRegressor::Decoupled),
             sve_fast: false,
         };
+        self.check_mask = check - 1;
         // The block count across a change between blocks and blocks of one (`handed`): the
         // blocks stop with the samples handed so far carried (up to this step, or through the
         // last one when between steps); they start again from the clock's next step when
@@ -1605,11 +1611,9 @@ impl<T: SineTable> Controller<T> {
         }
         self.u = u;
         self.u_code = u_code;
-        if self.exc.sounding() {
-            st |= status::EXCITING;
-        }
-        // The phase and RECORD_READY, kept as they change (`set_phase`, `set_record`).
-        st |= self.status_hold;
+        // The phase and RECORD_READY, kept as they change (`set_phase`, `set_record`), and
+        // EXCITING, kept by the excitation with its envelope.
+        st |= self.exc.held();
         StepOut {
             u_m: u * self.p.to_m,
             u_code,
@@ -1991,7 +1995,7 @@ impl<T: SineTable> Controller<T> {
     /// the DIVE paths only: the SVE ones do not need it).
     #[inline(always)]
     fn force_check(&self) -> bool {
-        self.tick & self.now.check_mask == 0
+        self.tick & self.check_mask == 0
     }
 
     /// The DIVE force check (Indent and Dwell): the static force from the low-passed

@@ -334,9 +334,15 @@ pub struct Excitation<T> {
     chunk: u32,
     envelope: T,
     on: bool,
-    /// The envelope above zero, kept with it (the step's `EXCITING` flag, every sample).
-    sounding: bool,
+    /// The status word's bits held from sample to sample: `EXCITING` (the envelope above
+    /// zero), kept here with the envelope, and the owner's own ([`Self::held_mut`]: the
+    /// controller's phase bits and `RECORD_READY`), so that a step ORs them all in with one
+    /// load (issue 14, round 18: `EXCITING` took a load and an OR of its own per sample).
+    held: u32,
 }
+
+/// The status word's bit for a sounding excitation ([`Excitation::held`]).
+const EXCITING: u32 = crate::controller::status::EXCITING;
 
 /// [`Excitation::left_full`]'s bit for "fully on".
 const FULL: u32 = 1 << 31;
@@ -407,7 +413,7 @@ impl<T: SineTable> Excitation<T> {
         self.on = false;
         self.envelope = T::ZERO;
         self.set_full(false);
-        self.sounding = false;
+        self.held &= !EXCITING;
     }
 
     /// The current envelope.
@@ -418,7 +424,20 @@ impl<T: SineTable> Excitation<T> {
     /// True when the envelope is above zero (`envelope() > 0`, without the comparison).
     #[inline(always)]
     pub fn sounding(&self) -> bool {
-        self.sounding
+        self.held & EXCITING != 0
+    }
+
+    /// The status bits held ([`Self::held`]'s field): `EXCITING` while sounding, and the
+    /// owner's.
+    #[inline(always)]
+    pub(crate) fn held(&self) -> u32 {
+        self.held
+    }
+
+    /// The owner's status bits held with `EXCITING` (the owner must leave `EXCITING` as it is).
+    #[inline(always)]
+    pub(crate) fn held_mut(&mut self) -> &mut u32 {
+        &mut self.held
     }
 
     /// True when fully on.
@@ -541,8 +560,9 @@ impl<T: SineTable> Excitation<T> {
         };
         self.envelope = env.clamp_to(T::ZERO, T::ONE);
         self.set_full(self.on && self.envelope == T::ONE);
-        self.sounding = self.envelope > T::ZERO;
-        if self.sounding {
+        let sounding = self.envelope > T::ZERO;
+        self.held = (self.held & !EXCITING) | if sounding { EXCITING } else { 0 };
+        if sounding {
             self.envelope * s
         } else {
             T::ZERO

@@ -28,8 +28,8 @@ use visco_firmware::core_glue::{
 use visco_firmware::drivers::ad4000::{self, part, Ad4000, CFG_TURBO};
 use visco_firmware::drivers::ad5541::Ad5541;
 use visco_firmware::loop_body::{
-    self, BlockBuf, CommandSlot, Counters, EstimatorLink, Item, LoopState, QueueLink, SampleBlock,
-    ToneBuf, ToneLink,
+    self, BlockBuf, Counters, EstimatorLink, Item, LoopState, QueueLink, SampleBlock, ToneBuf,
+    ToneLink,
 };
 use visco_firmware::scale::Scale;
 use visco_firmware::spi_device::CsDevice;
@@ -464,8 +464,6 @@ pub fn make_loop(
     core: ActiveCore,
     link: QueueLink<'static, 'static>,
     tel: Producer<'static, Item>,
-    cmds: &'static CommandSlot,
-    counters: &'static Counters,
 ) -> Loop {
     let Some(feed) = b.feed_rx.take() else {
         fatal(8)
@@ -497,8 +495,6 @@ pub fn make_loop(
         core,
         link,
         tel,
-        cmds,
-        counters,
     )
 }
 
@@ -604,7 +600,7 @@ pub fn set_source(b: &mut Board, src: Source) -> u8 {
             b.loading_table = false;
             app::with_loop(|l| {
                 l.adc.source = AdcSource::Synthetic;
-                l.reset_index();
+                l.reset_index(app::COUNTERS);
             });
             if period_ticks != 0 {
                 timer_start(period_ticks);
@@ -618,7 +614,7 @@ pub fn set_source(b: &mut Board, src: Source) -> u8 {
                 // Samples of an earlier replay still queued are discarded.
                 while l.adc.feed.dequeue().is_some() {}
                 l.adc.source = AdcSource::Feed;
-                l.reset_index();
+                l.reset_index(app::COUNTERS);
             });
         }
     }

@@ -25,7 +25,7 @@ use stm32h7::stm32h743 as pac;
 use visco_firmware::core_glue::{ActiveCore, Number};
 use visco_firmware::drivers::ad4000::{part, Ad4000, CFG_TURBO};
 use visco_firmware::drivers::ad5541::Ad5541;
-use visco_firmware::loop_body::{self, CommandSlot, Counters, Item, LoopState, QueueLink};
+use visco_firmware::loop_body::{self, Item, LoopState, QueueLink};
 use visco_firmware::scale::Scale;
 use visco_firmware::spi_device::CsDevice;
 use visco_protocol::{ack, board, BenchFrame, BenchMode, CalibrationFrame, FeedBlock, Source};
@@ -512,8 +512,6 @@ pub fn make_loop(
     core: ActiveCore,
     link: QueueLink<'static, 'static>,
     tel: Producer<'static, Item>,
-    cmds: &'static CommandSlot,
-    counters: &'static Counters,
 ) -> Loop {
     for n in [5, 6, 7] {
         alternate(GPIOA, n, 5); // SPI1 SCK, MISO, MOSI
@@ -541,8 +539,6 @@ pub fn make_loop(
         core,
         link,
         tel,
-        cmds,
-        counters,
     )
 }
 
@@ -577,7 +573,7 @@ pub fn set_source(_b: &mut Board, src: Source) -> u8 {
     timer_stop();
     match src {
         Source::Timer { period_ticks } => {
-            app::with_loop(|l| l.reset_index());
+            app::with_loop(|l| l.reset_index(app::COUNTERS));
             if period_ticks != 0 {
                 timer_start(period_ticks);
             }
