@@ -384,6 +384,9 @@ pub struct Trace {
     pub u_eff: Vec<f64>,
     /// Tip velocity Ż (nm/µs).
     pub v: Vec<f64>,
+    /// What the effects saw at each sample's reading: [`reading_with`] replays an added
+    /// effect on them.
+    pub contexts: Vec<EffectContext>,
 }
 
 /// Volume of the cap below the bed's surface (nm³) at apex depth δ (see
@@ -465,6 +468,7 @@ pub fn simulate_before_offset(
         tr.force.reserve(n);
         tr.u_eff.reserve(n);
         tr.v.reserve(n);
+        tr.contexts.reserve(n);
     }
     let (k_lin, c_lin) = effects.iter().fold((0.0, 0.0), |(k, c), e| {
         let (ek, ec) = e.linear_terms();
@@ -568,6 +572,7 @@ pub fn simulate_before_offset(
                 tr.force.push(ctx.contact_force_nn);
                 tr.u_eff.push(u_eff_prev);
                 tr.v.push(v);
+                tr.contexts.push(ctx);
             }
         }
         out.push(d);
@@ -581,24 +586,21 @@ pub fn simulate_before_offset(
 /// without it, so the effect's hooks replay on them — what a full simulation computes, at the
 /// cost of the effect's own arithmetic (a second mode's shape grid is ~150 such readings).
 pub fn reading_with(
-    inst: &Instrument,
     nom: &Nominal,
     effect: &mut dyn Effect,
     data: &Data,
     trace: &Trace,
     base: &[f64],
 ) -> Vec<f64> {
-    let n = data.len().min(trace.v.len()).min(base.len());
-    let geo = &BedGeometry::new(nom.bed, inst.r_tip);
-    let mut hint = 0;
-    (0..n)
-        .map(|i| {
-            let ct = nom.contacts[data.unit[i].min(nom.contacts.len() - 1)];
-            let dt = interval_before(data, i);
-            let (z, v) = (trace.z[i], trace.v[i]);
-            let ctx = context(ct, geo, data.t[i], dt, z, v, data.u[i], &mut hint);
-            let d = effect.measured_deflection_nm(&ctx, base[i] - nom.offset);
-            effect.end_of_step(&ctx);
+    // The simulation's own contexts: what a full simulation's effects would see.
+    trace
+        .contexts
+        .iter()
+        .zip(base)
+        .take(data.len())
+        .map(|(ctx, &b)| {
+            let d = effect.measured_deflection_nm(ctx, b - nom.offset);
+            effect.end_of_step(ctx);
             d + nom.offset
         })
         .collect()
@@ -868,35 +870,47 @@ impl PropagatorCache {
         )
     }
 
-    /// The propagator of (c, k, τ) at mass `m` and 1/k.
-    #[inline]
+    /// The propagator of (c, k, τ) at mass `m` and 1/k. The last entry used is the usual
+    /// one (free flight, a lattice between engagements), tried inline; a hit there leaves
+    /// the stamps alone.
+    #[inline(always)]
     fn get(&mut self, m: f64, c: f64, k: f64, tau: f64) -> (Propagator, f64) {
-        self.clock += 1;
         // τ = 0 marks an empty entry (a piece of zero length is recomputed, as before).
+        let e = &self.entries[self.last];
+        if e.tau != 0.0 && e.tau == tau && e.c == c && e.k == k {
+            return (e.prop, e.inv_k);
+        }
+        self.get_other(m, c, k, tau)
+    }
+
+    /// [`PropagatorCache::get`] past the last entry: the others searched, the least
+    /// recently used replaced on a miss. An entry is stamped when it stops being the last,
+    /// so the smallest stamp is still the least recently used.
+    #[inline(never)]
+    fn get_other(&mut self, m: f64, c: f64, k: f64, tau: f64) -> (Propagator, f64) {
+        self.clock += 1;
+        self.entries[self.last].used = self.clock;
         let is = |e: &CacheEntry| e.tau != 0.0 && (e.c, e.k, e.tau) == (c, k, tau);
-        let i = if is(&self.entries[self.last]) {
-            self.last
-        } else {
-            match self.entries.iter().position(is) {
-                Some(i) => i,
-                None => {
-                    let i = (0..PROPAGATOR_CACHE)
-                        .min_by_key(|&i| self.entries[i].used)
-                        .unwrap_or(0);
-                    let (prop, inv_k) = self.compute(m, c, k, tau);
-                    self.entries[i] = CacheEntry {
-                        c,
-                        k,
-                        tau,
-                        prop,
-                        inv_k,
-                        used: 0,
-                    };
-                    i
-                }
+        let i = match self.entries.iter().position(is) {
+            Some(i) => i,
+            None => {
+                let i = (0..PROPAGATOR_CACHE)
+                    .min_by_key(|&i| self.entries[i].used)
+                    .unwrap_or(0);
+                let (prop, inv_k) = self.compute(m, c, k, tau);
+                self.entries[i] = CacheEntry {
+                    c,
+                    k,
+                    tau,
+                    prop,
+                    inv_k,
+                    used: 0,
+                };
+                i
             }
         };
         self.last = i;
+        self.clock += 1;
         let e = &mut self.entries[i];
         e.used = self.clock;
         (e.prop, e.inv_k)
@@ -1033,7 +1047,7 @@ impl Dyn<'_> {
     /// homogeneous deviation propagated exactly. `engaged`: the lattice's count at the start
     /// where the caller has it (its search saved).
     #[allow(clippy::too_many_arguments)]
-    #[inline]
+    #[inline(always)]
     fn piece(
         &self,
         z: f64,

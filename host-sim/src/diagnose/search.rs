@@ -1030,7 +1030,6 @@ impl Problem {
         }
         let mut e = cand.spec(v, env).build();
         Some(reading_with(
-            &self.inst,
             &base.nominal,
             e.as_mut(),
             &self.data,
