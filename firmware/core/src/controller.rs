@@ -2241,7 +2241,9 @@ impl<T: SineTable> Controller<T> {
         let force = self.p.reg.stiffness * (self.sve.d_free - self.contact.lowpassed());
         self.sve.force_slow += self.p.force_slow_weight * (force - self.sve.force_slow);
         if !FAST && self.sve.lost {
-            return self.sve_reapproach(t, z, st, sink);
+            let (u, bits) = self.sve_reapproach(t, z, sink);
+            *st |= bits;
+            return u;
         }
         *st |= status::CONTACT;
         if force > self.p.guard_sve.force_max {
@@ -2339,8 +2341,12 @@ impl<T: SineTable> Controller<T> {
     /// One sample of the SVE re-approach: lower the base at the approach speed until the
     /// force is back (then resume with the depth integrator starting where the contact was
     /// found), give up after the approach's travel. The scan and its pixels go on, flagged.
-    fn sve_reapproach(&mut self, t: u32, z: T, st: &mut u32, sink: &mut impl SampleSink<T>) -> T {
-        *st |= status::CONTACT_LOST;
+    /// Returns U and the sample's status bits, for the caller to OR into its own (issue 14,
+    /// round 18: out of line, this function took the caller's status word by reference, and
+    /// that address kept the word in memory on every path of the step, a store at each of its
+    /// changes and a load at its end).
+    fn sve_reapproach(&mut self, t: u32, z: T, sink: &mut impl SampleSink<T>) -> (T, u32) {
+        let mut st = status::CONTACT_LOST;
         if !self.sve.left {
             // Wait, holding U, until the tip is off the surface (after a force-limit jump the
             // slow force takes a few of its time constants to fall).
@@ -2357,9 +2363,9 @@ impl<T: SineTable> Controller<T> {
             match self.approach_u(self.sve.u_cmd, self.sve.reapproach_from) {
                 Some(u) => self.sve.u_cmd = u,
                 None => {
-                    *st |= status::NO_CONTACT;
+                    st |= status::NO_CONTACT;
                     self.set_phase(Phase::Retract);
-                    return self.sve.u_cmd;
+                    return (self.sve.u_cmd, st);
                 }
             }
         }
@@ -2371,9 +2377,9 @@ impl<T: SineTable> Controller<T> {
         };
         let h = z;
         if self.sve_sequence::<false>(t, [c, k, h, T::ZERO], status::CONTACT_LOST) {
-            *st |= status::READOUT;
+            st |= status::READOUT;
         }
-        self.sve.u_cmd + self.exc.next(&self.p.sve.exc, sink)
+        (self.sve.u_cmd + self.exc.next(&self.p.sve.exc, sink), st)
     }
 
     /// The raster: settle, then forward, backward, turn per line; pixel bins along the way.
