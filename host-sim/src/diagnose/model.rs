@@ -733,6 +733,8 @@ struct InputPoly {
     c: [f64; 4],
     /// The step of U at the interval's start (nm), for the impulse C·Δu/M.
     jump: f64,
+    /// Held over the interval: `c[1..]` are +0 by construction, not by chance.
+    held: bool,
 }
 
 /// The base's path between samples i − 1 and i under `input`; `u0`, `u1` are the effective
@@ -752,16 +754,19 @@ fn input_polynomial(
         Input::Held => InputPoly {
             c: [u1, 0.0, 0.0, 0.0],
             jump: u1 - u0,
+            held: true,
         },
         // The step to u0 happened at sample i − 1, just before its reading: its impulse acts
         // from there (at the first sample it is part of the fitted initial state).
         Input::HeldFromSample => InputPoly {
             c: [u0, 0.0, 0.0, 0.0],
             jump: if i >= 2 { u0 - u_before } else { 0.0 },
+            held: true,
         },
         Input::Linear => InputPoly {
             c: [u0, u1 - u0, 0.0, 0.0],
             jump: 0.0,
+            held: false,
         },
         Input::Cubic => {
             let n = data.len();
@@ -784,6 +789,7 @@ fn input_polynomial(
             InputPoly {
                 c: [a + e0, m0 + (e1 - e0), c2, c3],
                 jump: 0.0,
+                held: false,
             }
         }
     }
@@ -1080,14 +1086,7 @@ impl Dyn<'_> {
             (0.0, 0.0, 0.0)
         };
         let (k, c, m) = (self.k + kt, self.c + ct, self.m);
-        // Force K·u + C·u̇ + held terms as a cubic in local time: a0 + a1·τ + a2·τ² + a3·τ³.
-        let [b0, b1, b2, b3] = poly.local(s0, cache.inv_interval(dt));
         let (kb, cb) = (self.k_base, self.c_base);
-        let a0 = kb * b0 + cb * b1 + f_hold + f_eff;
-        let a1 = kb * b1 + 2.0 * cb * b2;
-        let a2 = kb * b2 + 3.0 * cb * b3;
-        let a3 = kb * b3;
-        // Particular solution p0 + p1·τ + p2·τ² + p3·τ³ of M·z̈ + c·ż + k·z = a(τ).
         // Cached: in free flight, and on a lattice between engagements, every interval has
         // the same one.
         let (prop, ik) = if kt != 0.0 && !self.geo.is_lattice() {
@@ -1095,6 +1094,36 @@ impl Dyn<'_> {
         } else {
             cache.get(m, c, k, tau)
         };
+        let inv_dt = cache.inv_interval(dt);
+        if poly.held
+            && kb > 0.0
+            && k > 0.0
+            && ik < f64::INFINITY
+            && c >= 0.0
+            && m >= 0.0
+            && tau >= 0.0
+            && inv_dt < f64::INFINITY
+        {
+            // A held base: the general path below with c₁ = c₂ = c₃ = +0, each of its
+            // operations taken with its IEEE signed zeros, under these signs (and a finite
+            // 1/Δt, or b₁ would be 0·∞). Its b₁..b₃,
+            // a₁..a₃ and p₁..p₃ are all +0; b₀ = c₀ + 0 (−0 becomes +0); the sum
+            // K·b₀ + C·(±0) is K·b₀, never −0 for K > 0 and b₀ ≠ −0; p₀ = a₀/k; subtracting
+            // a +0 changes nothing; the particular solution's τ-polynomials are p₀ + 0 and
+            // +0. So the same bits, without the cubic's arithmetic.
+            let b0 = poly.c[0] + 0.0;
+            let a0 = kb * b0 + f_hold + f_eff;
+            let p0 = a0 * ik;
+            let (e1, ed1) = prop.apply(z - p0, v, 0.0);
+            return (e1 + (p0 + 0.0), ed1 + 0.0);
+        }
+        // Force K·u + C·u̇ + held terms as a cubic in local time: a0 + a1·τ + a2·τ² + a3·τ³.
+        let [b0, b1, b2, b3] = poly.local(s0, inv_dt);
+        let a0 = kb * b0 + cb * b1 + f_hold + f_eff;
+        let a1 = kb * b1 + 2.0 * cb * b2;
+        let a2 = kb * b2 + 3.0 * cb * b3;
+        let a3 = kb * b3;
+        // Particular solution p0 + p1·τ + p2·τ² + p3·τ³ of M·z̈ + c·ż + k·z = a(τ).
         let p3 = a3 * ik;
         let p2 = (a2 - 3.0 * c * p3) * ik;
         let p1 = (a1 - 2.0 * c * p2 - 6.0 * m * p3) * ik;
@@ -1402,6 +1431,72 @@ mod tests {
             );
             assert_eq!(cache.get(m, c, k, tau), uncached(c, k, tau), "key {i}");
         }
+    }
+
+    /// A held base's short path through the exact step gives the general path's bits,
+    /// signed zeros and all: on both beds, in and out of contact, for zero and negative-zero
+    /// states and inputs, Δt down to 0 and subnormal, and for negative stiffness or damping
+    /// (where the short path must not be taken).
+    #[test]
+    fn a_held_base_steps_bit_for_bit_as_the_general_cubic() {
+        let mut rng = crate::plant::rng::Xoshiro256pp::new(11);
+        let mut u = |lo: f64, hi: f64| lo + (hi - lo) * rng.next_open01();
+        let same = |a: f64, b: f64| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
+        let beds = [
+            Bed::Continuum,
+            Bed::Lattice {
+                pitch_nm: 100.0,
+                offset: [0.25, 0.5],
+            },
+        ];
+        let zeros = [0.0, -0.0];
+        let mut checked = 0;
+        for bed in beds {
+            let geo = BedGeometry::new(bed, 300.0);
+            for case in 0..4000 {
+                let pick = |i: usize, x: f64| if case % 7 == i { zeros[case % 2] } else { x };
+                let sys = Dyn {
+                    m: 11.8,
+                    k: if case % 11 == 0 { -0.3 } else { u(0.05, 0.5) },
+                    k_base: u(0.05, 0.5),
+                    c: if case % 13 == 0 { -0.01 } else { u(0.0, 0.2) },
+                    c_base: u(0.0, 0.2),
+                    r: 300.0,
+                    geo: &geo,
+                    ct: Contact {
+                        h: u(-50.0, 50.0),
+                        k_a: pick(5, u(0.0, 1e-3)),
+                        c_a: u(0.0, 1e-3),
+                    },
+                };
+                let z = pick(1, u(-100.0, 100.0));
+                let v = pick(2, u(-5.0, 5.0));
+                let f_eff = pick(3, u(-1.0, 1.0));
+                let c0 = pick(4, u(-200.0, 200.0));
+                let s0 = if case % 3 == 0 { 0.0 } else { u(0.0, 0.9) };
+                let s1 = if case % 5 == 0 { s0 } else { u(s0, 1.0) };
+                let dt = [1.0, 0.5, 2e-3, 1e-310, 0.0][case % 5];
+                let held = InputPoly {
+                    c: [c0, 0.0, 0.0, 0.0],
+                    jump: 0.0,
+                    held: true,
+                };
+                let general = InputPoly {
+                    held: false,
+                    ..held
+                };
+                let engaged = geo.is_lattice().then(|| geo.engaged(sys.ct.h - z));
+                let (mut c1, mut c2) = (PropagatorCache::default(), PropagatorCache::default());
+                let a = sys.piece(z, v, &held, s0, s1, f_eff, dt, engaged, &mut c1);
+                let b = sys.piece(z, v, &general, s0, s1, f_eff, dt, engaged, &mut c2);
+                assert!(
+                    same(a.0, b.0) && same(a.1, b.1),
+                    "case {case} on {bed:?}: {a:?} against {b:?}"
+                );
+                checked += 1;
+            }
+        }
+        assert_eq!(checked, 8000);
     }
 
     /// The sub-step count is `ceil` as the interval uses it: exact to SUBSTEPS_MAX + 1, and
