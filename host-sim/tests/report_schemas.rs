@@ -52,6 +52,8 @@ fn row(effect: Option<EffectKind>, named: Vec<EffectKind>, error: Option<String>
         // Not computable for a refused recording: written null.
         truth_error_before_m: if error.is_some() { f64::NAN } else { 2e-10 },
         truth_error_after_m: if error.is_some() { f64::NAN } else { 5e-11 },
+        effect_rms_m: if error.is_some() { f64::NAN } else { 8e-10 },
+        held_out_samples: if error.is_some() { 0 } else { 900 },
         span_rms_before_m: f64::NAN,
         span_rms_after_m: f64::NAN,
         wall_s: 1.5,

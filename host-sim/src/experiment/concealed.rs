@@ -735,6 +735,11 @@ pub struct SuiteRow {
     /// the noise hides, nominal and final.
     pub truth_error_before_m: f64,
     pub truth_error_after_m: f64,
+    /// Held-out RMS of the concealed effect itself in D: the noise-free D with it minus
+    /// without it (m; truth-based, NaN where the truth has no D without it).
+    pub effect_rms_m: f64,
+    /// How many samples the diagnosis held out (its test's sample count).
+    pub held_out_samples: usize,
     /// Held-out RMS over the first finding's located spans, before and after it (m).
     pub span_rms_before_m: f64,
     pub span_rms_after_m: f64,
@@ -753,6 +758,23 @@ impl SuiteRow {
     /// noise-free truth before over after (truth-based; NaN where nothing could be fitted).
     pub fn hidden_misfit_cut(&self) -> f64 {
         self.truth_error_before_m / self.truth_error_after_m
+    }
+    /// The held-out z an ideal extension would reach (truth-based): one that explained the
+    /// nominal fit's whole systematic misfit `r` (model against the noise-free truth) and
+    /// nothing of the noise. Its held-out log-likelihood gain is Σr²/2σ² + Σr·n/σ², mean S/2
+    /// and standard deviation √S for S = Σr²/σ², so z = √S / 2. An upper bound for any
+    /// candidate: below the first stage's one-sided threshold (≈ 3.1 for ten candidates at
+    /// α = 0.01) no extension, however right its law, could pass, because the nominal fit
+    /// has taken the rest of the effect into its own parameters.
+    pub fn ideal_z(&self) -> f64 {
+        let s = self.held_out_samples as f64 * (self.truth_error_before_m / self.noise_m).powi(2);
+        s.sqrt() / 2.0
+    }
+    /// The share of the concealed effect's held-out RMS in D that the nominal fit took into
+    /// its own parameters (truth-based): 1 − misfit left / effect, clipped to [0, 1]. The
+    /// misfit left also holds the nominal's own approximations, so this understates it.
+    pub fn absorbed(&self) -> f64 {
+        (1.0 - self.truth_error_before_m / self.effect_rms_m).clamp(0.0, 1.0)
     }
     /// Whether the top-1 is right (for clean recordings: nothing named).
     pub fn correct(&self) -> bool {
@@ -811,6 +833,7 @@ pub fn diagnose_scenario(
         sc.noise_m,
         &sc.recording,
         &sc.truth_d_m,
+        Some(&sc.clean_d_m),
         opts,
     )
 }
@@ -826,6 +849,7 @@ pub fn score(
     noise_m: f64,
     rec: &Recording,
     truth_d_m: &[f64],
+    clean_d_m: Option<&[f64]>,
     opts: &crate::diagnose::search::SearchOptions,
 ) -> SuiteRow {
     let t = std::time::Instant::now();
@@ -861,6 +885,8 @@ pub fn score(
                 rms_after_m: d.rms_after_m,
                 truth_error_before_m: rms(&d.nominal_d_m, truth_d_m),
                 truth_error_after_m: rms(&d.final_d_m, truth_d_m),
+                effect_rms_m: clean_d_m.map_or(f64::NAN, |c| rms(truth_d_m, c)),
+                held_out_samples: held.iter().filter(|&&h| h).count(),
                 span_rms_before_m: sb,
                 span_rms_after_m: sa,
                 wall_s: 0.0,
@@ -878,6 +904,8 @@ pub fn score(
             rms_after_m: f64::NAN,
             truth_error_before_m: f64::NAN,
             truth_error_after_m: f64::NAN,
+            effect_rms_m: f64::NAN,
+            held_out_samples: 0,
             span_rms_before_m: f64::NAN,
             span_rms_after_m: f64::NAN,
             wall_s: 0.0,
@@ -1016,6 +1044,8 @@ pub struct TruthRecording {
     pub ratio: f64,
     pub noise_m: f64,
     pub truth_d_m: Vec<f64>,
+    /// The noise-free D without the effect, where the truth CSV has it (`d_clean_m`).
+    pub clean_d_m: Option<Vec<f64>>,
 }
 
 /// Reads every `*.csv` of `dir` that has a `.truth.json` beside it (the truth CSVs
@@ -1061,17 +1091,33 @@ pub fn read_truth_dir(dir: &std::path::Path) -> Result<Vec<TruthRecording>, Stri
         let truth_path = dir.join(format!("{stem}.truth.csv"));
         let text = std::fs::read_to_string(&truth_path)
             .map_err(|e| format!("{}: cannot read: {e}", truth_path.display()))?;
+        // Columns by their header's names: `d_true_m` (required; the second column where the
+        // header does not name it) and `d_clean_m` (optional: the effect's own size).
+        let header: Vec<&str> = text
+            .lines()
+            .next()
+            .unwrap_or("")
+            .split(',')
+            .map(str::trim)
+            .collect();
+        let true_col = header.iter().position(|h| *h == "d_true_m").unwrap_or(1);
+        let clean_col = header.iter().position(|h| *h == "d_clean_m");
         let mut truth_d_m = Vec::with_capacity(recording.len());
+        let mut clean_d_m = clean_col.map(|_| Vec::with_capacity(recording.len()));
         for (i, line) in text.lines().enumerate().skip(1) {
-            let cell = line
-                .split(',')
-                .nth(1)
-                .ok_or_else(|| format!("{}:{}: no d_true_m column", truth_path.display(), i + 1))?;
-            truth_d_m.push(
-                cell.trim()
+            let cells: Vec<&str> = line.split(',').collect();
+            let cell = |col: usize, name: &str| -> Result<f64, String> {
+                let c = cells.get(col).ok_or_else(|| {
+                    format!("{}:{}: no {name} column", truth_path.display(), i + 1)
+                })?;
+                c.trim()
                     .parse::<f64>()
-                    .map_err(|e| format!("{}:{}: `{cell}`: {e}", truth_path.display(), i + 1))?,
-            );
+                    .map_err(|e| format!("{}:{}: `{c}`: {e}", truth_path.display(), i + 1))
+            };
+            truth_d_m.push(cell(true_col, "d_true_m")?);
+            if let (Some(col), Some(v)) = (clean_col, clean_d_m.as_mut()) {
+                v.push(cell(col, "d_clean_m")?);
+            }
         }
         if truth_d_m.len() != recording.len() {
             return Err(format!(
@@ -1089,6 +1135,7 @@ pub fn read_truth_dir(dir: &std::path::Path) -> Result<Vec<TruthRecording>, Stri
             ratio: num("peak_difference_over_noise")?,
             noise_m: num("noise_rms_m")?,
             truth_d_m,
+            clean_d_m,
         });
     }
     if out.is_empty() {
@@ -1121,6 +1168,7 @@ pub fn run_recordings(
                     r.noise_m,
                     &r.recording,
                     &r.truth_d_m,
+                    r.clean_d_m.as_deref(),
                     opts,
                 )
             }) as Box<dyn Fn() -> SuiteRow + Sync>
@@ -1233,6 +1281,40 @@ impl SuiteReport {
             .filter(|x| x.is_finite())
             .collect();
         crate::identify::signal::median(&v)
+    }
+
+    /// The first stage's one-sided z threshold with every effect a candidate (Bonferroni over
+    /// the ten at the suite's α): what [`SuiteRow::ideal_z`] is compared with.
+    pub fn first_stage_z(&self) -> f64 {
+        crate::diagnose::noise::normal_isf(self.alpha / EffectKind::ALL.len() as f64)
+    }
+
+    /// Per effect, truth-based: (median share of the effect the nominal fit absorbed, over
+    /// its recordings; recordings not named right first; of those, how many leave the nominal
+    /// fit so little systematic misfit that even an ideal extension stays below
+    /// [`Self::first_stage_z`]).
+    pub fn absorbed_per_effect(&self) -> Vec<(EffectKind, f64, usize, usize)> {
+        let z = self.first_stage_z();
+        EffectKind::ALL
+            .iter()
+            .map(|&k| {
+                let rows: Vec<&SuiteRow> =
+                    self.rows.iter().filter(|r| r.effect == Some(k)).collect();
+                let absorbed: Vec<f64> = rows
+                    .iter()
+                    .map(|r| r.absorbed())
+                    .filter(|a| a.is_finite())
+                    .collect();
+                let missed: Vec<&&SuiteRow> = rows.iter().filter(|r| !r.correct()).collect();
+                let hidden = missed.iter().filter(|r| r.ideal_z() < z).count();
+                (
+                    k,
+                    crate::identify::signal::median(&absorbed),
+                    missed.len(),
+                    hidden,
+                )
+            })
+            .collect()
     }
 
     /// Per effect: (recordings, right, median cut of the systematic error, share of right
@@ -1357,15 +1439,22 @@ impl SuiteReport {
             per_effect: self
                 .per_effect()
                 .into_iter()
-                .map(|(k, n, right, cut, two, span)| EffectJson {
-                    effect: k.as_str().into(),
-                    recordings: n as u64,
-                    named_first: right as u64,
-                    median_truth_error_cut: cut.into(),
-                    share_cut_at_least_2: two.into(),
-                    median_span_rms_cut: span.into(),
-                })
+                .zip(self.absorbed_per_effect())
+                .map(
+                    |((k, n, right, cut, two, span), (_, absorbed, missed, hidden))| EffectJson {
+                        effect: k.as_str().into(),
+                        recordings: n as u64,
+                        named_first: right as u64,
+                        median_truth_error_cut: cut.into(),
+                        share_cut_at_least_2: two.into(),
+                        median_span_rms_cut: span.into(),
+                        median_absorbed_by_nominal: absorbed.into(),
+                        missed_below_ideal_z: hidden as u64,
+                        missed: missed as u64,
+                    },
+                )
                 .collect(),
+            first_stage_z: self.first_stage_z().into(),
             confusion_markdown: self.confusion_markdown(),
             definitions: Definitions {
                 peak_difference_over_noise: "largest |D with − D without the effect| (noise-free \
@@ -1377,6 +1466,16 @@ impl SuiteReport {
                     .into(),
                 span_rms: "held-out RMS of recorded − model over where the first finding acts, \
                            before and after it"
+                    .into(),
+                absorbed: "truth-based: 1 − the nominal fit's truth error over the effect's own \
+                           held-out RMS in D (noise-free D with it − without it), clipped to \
+                           [0, 1]: the share of the effect the nominal model's own parameters \
+                           took in"
+                    .into(),
+                ideal_z: "truth-based: the held-out z an extension explaining the nominal \
+                          fit's whole truth error would reach, √(n·(truth error/noise)²)/2 over \
+                          the n held-out samples; a miss below `first_stage_z` could not have \
+                          been named by any extension at the first stage's level"
                     .into(),
             },
             rows: self
@@ -1397,6 +1496,9 @@ impl SuiteReport {
                     rms_after_m: r.rms_after_m.into(),
                     truth_error_before_m: r.truth_error_before_m.into(),
                     truth_error_after_m: r.truth_error_after_m.into(),
+                    effect_rms_m: r.effect_rms_m.into(),
+                    held_out_samples: r.held_out_samples as u64,
+                    ideal_z: r.ideal_z().into(),
                     span_rms_before_m: r.span_rms_before_m.into(),
                     span_rms_after_m: r.span_rms_after_m.into(),
                     wall_s: r.wall_s.into(),
@@ -1444,6 +1546,9 @@ pub struct SuiteJson {
     pub hidden_misfit_cut_at_least_2: CutShare,
     pub per_class: Vec<ClassJson>,
     pub per_effect: Vec<EffectJson>,
+    /// The first stage's one-sided z threshold, every effect a candidate (Bonferroni over the
+    /// ten at `alpha`): what each row's `ideal_z` is compared with.
+    pub first_stage_z: Num,
     pub confusion_markdown: String,
     pub definitions: Definitions,
     pub rows: Vec<RowJson>,
@@ -1480,6 +1585,14 @@ pub struct EffectJson {
     pub median_truth_error_cut: Num,
     pub share_cut_at_least_2: Num,
     pub median_span_rms_cut: Num,
+    /// Median over the class's recordings of the share of the effect the nominal fit took in
+    /// (truth-based; `definitions.absorbed`).
+    pub median_absorbed_by_nominal: Num,
+    /// Recordings not named right first.
+    pub missed: u64,
+    /// Of those, how many an ideal extension could not have named at the first stage's level
+    /// (truth-based; `definitions.ideal_z`).
+    pub missed_below_ideal_z: u64,
 }
 
 /// What the derived quantities mean.
@@ -1488,6 +1601,8 @@ pub struct Definitions {
     pub peak_difference_over_noise: String,
     pub truth_error: String,
     pub span_rms: String,
+    pub absorbed: String,
+    pub ideal_z: String,
 }
 
 /// One recording of the suite.
@@ -1510,6 +1625,11 @@ pub struct RowJson {
     pub rms_after_m: Num,
     pub truth_error_before_m: Num,
     pub truth_error_after_m: Num,
+    /// The concealed effect's own held-out RMS in D (truth-based; null where unknown).
+    pub effect_rms_m: Num,
+    pub held_out_samples: u64,
+    /// Truth-based: `definitions.ideal_z`.
+    pub ideal_z: Num,
     pub span_rms_before_m: Num,
     pub span_rms_after_m: Num,
     pub wall_s: Num,
