@@ -105,6 +105,9 @@ pub trait LoopCore {
     /// The block clock's tick for the next step (call once before each step): true when it
     /// closes a block: deliver the estimator's result, then close the block.
     fn block_due(&mut self) -> bool;
+    /// [`Self::block_due`]'s usual case: the clock advanced and true where the step closes no
+    /// block; false, the clock as it was, where [`Self::block_due`] is to be called.
+    fn block_continues(&mut self) -> bool;
     /// Adopts the estimator task's result.
     fn deliver(&mut self, r: &BlockResult);
     /// Closes the block (when [`Self::block_due`], before the step) and hands its header to
@@ -140,6 +143,10 @@ impl LoopCore for ActiveCore {
     #[inline(always)]
     fn block_due(&mut self) -> bool {
         visco_core::Controller::block_due(self)
+    }
+    #[inline(always)]
+    fn block_continues(&mut self) -> bool {
+        visco_core::Controller::block_continues(self)
     }
     #[inline(always)]
     fn deliver(&mut self, r: &BlockResult) {

@@ -641,27 +641,10 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
             bump(&counters.starved);
             return;
         };
-        if core.block_due() {
-            if self.in_flight > 0 {
-                // The schedule: the last block's result is adopted now, before this step.
-                while let Some(r) = self.estimator.receive() {
-                    core.deliver(&r);
-                    self.in_flight -= 1;
-                }
-                // One still out is late (a steady lag of a block counts at every close).
-                if self.in_flight > 0 {
-                    bump(&counters.estimator_late);
-                }
-            }
-            // The block closes at the start of this sample: straight into the queue.
-            let estimator = &mut self.estimator;
-            match core.close_block(|b| estimator.send(b)) {
-                Some(true) => self.in_flight += 1,
-                Some(false) => bump(&counters.blocks_dropped),
-                None => {}
-            }
+        if !core.block_continues() {
+            self.close_block(counters);
         }
-        let out = core.step(d, &mut self.estimator);
+        let out = self.core.step(d, &mut self.estimator);
         let dac_word = self.u_out.write(out.u_code);
         // Lateral DACs are written only when the setpoint moves (once per pixel in SVE):
         // three SPI writes per sample would not fit 1 MHz.
@@ -697,6 +680,36 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
             }
         }
         bump(&counters.samples);
+    }
+
+    /// A block close: the last block's result adopted, the block handed over. Out of line
+    /// (issue 14, round 19): once per block, and inlined it put a jump around itself and its
+    /// registers' spills on every sample's path.
+    #[cold]
+    #[inline(never)]
+    fn close_block(&mut self, counters: &Counters) {
+        let core = &mut self.core;
+        if !core.block_due() {
+            return;
+        }
+        if self.in_flight > 0 {
+            // The schedule: the last block's result is adopted now, before this step.
+            while let Some(r) = self.estimator.receive() {
+                core.deliver(&r);
+                self.in_flight -= 1;
+            }
+            // One still out is late (a steady lag of a block counts at every close).
+            if self.in_flight > 0 {
+                bump(&counters.estimator_late);
+            }
+        }
+        // The block closes at the start of this sample: straight into the queue.
+        let estimator = &mut self.estimator;
+        match core.close_block(|b| estimator.send(b)) {
+            Some(true) => self.in_flight += 1,
+            Some(false) => bump(&counters.blocks_dropped),
+            None => {}
+        }
     }
 
     /// The index of the sample being stepped (since the source was last set).
