@@ -113,6 +113,10 @@ pub trait LoopCore {
     /// Closes the block (when [`Self::block_due`], before the step) and hands its header to
     /// `send` (the queue's enqueue); `None` when it is empty.
     fn close_block<R>(&mut self, send: impl FnOnce(Block) -> R) -> Option<R>;
+    /// [`Self::close_block`] in two: the block's samples (0: no header, nothing to send) ...
+    fn block_samples(&mut self) -> u32;
+    /// ... and its header (of `n` > 0 samples), taken.
+    fn header(&mut self, n: u32) -> Block;
     /// U, X, Y of the step just taken, in metres (telemetry).
     fn outputs_m(&self, out: &StepOut) -> [f32; 3];
     /// The finished tap or pixel as a telemetry frame (status bit [`RECORD_READY`]).
@@ -155,6 +159,14 @@ impl LoopCore for ActiveCore {
     #[inline(always)]
     fn close_block<R>(&mut self, send: impl FnOnce(Block) -> R) -> Option<R> {
         visco_core::Controller::close_block(self, send)
+    }
+    #[inline(always)]
+    fn block_samples(&mut self) -> u32 {
+        visco_core::Controller::block_samples(self)
+    }
+    #[inline(always)]
+    fn header(&mut self, n: u32) -> Block {
+        visco_core::Controller::header(self, n)
     }
     #[inline(always)]
     fn outputs_m(&self, out: &StepOut) -> [f32; 3] {

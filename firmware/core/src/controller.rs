@@ -1686,14 +1686,31 @@ impl<T: SineTable> Controller<T> {
     /// takes samples between restarts: the target's.
     #[inline(always)]
     fn closing_block(&mut self) -> Option<Block<T>> {
-        // The closed block's samples handed over since its start or its last restart.
+        let n = self.block_samples();
+        if n == 0 {
+            return None;
+        }
+        Some(self.header(n))
+    }
+
+    /// The samples of the block just closed (when [`Self::block_due`]): handed over since its
+    /// start or its last restart; the counts start again. With none, no header is taken: its
+    /// restart and the samples to discard wait for the next block that has samples.
+    #[inline(always)]
+    pub fn block_samples(&mut self) -> u32 {
         let n = self.handed(self.closed_steps);
         self.block_from = 0;
         self.unfed = 0;
         self.carry = 0;
-        if n == 0 {
-            return None;
-        }
+        n
+    }
+
+    /// The header of the block just closed, of its `n` samples ([`Self::block_samples`], not
+    /// 0), with a pending restart and the samples to discard before it: taken (the firmware
+    /// writes it straight into the buffer it hands over, issue 14, round 19: built first, it
+    /// was spilled to the stack while a free buffer was taken, and copied).
+    #[inline(always)]
+    pub fn header(&mut self, n: u32) -> Block<T> {
         let b = Block {
             restart: self.pending_restart.take(),
             restart_watch: core::mem::take(&mut self.pending_watch),
@@ -1712,7 +1729,7 @@ impl<T: SineTable> Controller<T> {
             },
         };
         self.skip_n = 0;
-        Some(b)
+        b
     }
 
     /// A new tap or scan: the estimator at θ̂₀ with P₀, the divergence watch restarted.
