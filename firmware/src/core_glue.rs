@@ -108,6 +108,8 @@ pub trait LoopCore {
     /// [`Self::block_due`]'s usual case: the clock advanced and true where the step closes no
     /// block; false, the clock as it was, where [`Self::block_due`] is to be called.
     fn block_continues(&mut self) -> bool;
+    /// [`Self::block_due`] where [`Self::block_continues`] returned false.
+    fn block_closes(&mut self) -> bool;
     /// Adopts the estimator task's result.
     fn deliver(&mut self, r: &BlockResult);
     /// Closes the block (when [`Self::block_due`], before the step) and hands its header to
@@ -151,6 +153,10 @@ impl LoopCore for ActiveCore {
     #[inline(always)]
     fn block_continues(&mut self) -> bool {
         visco_core::Controller::block_continues(self)
+    }
+    #[inline(always)]
+    fn block_closes(&mut self) -> bool {
+        visco_core::Controller::block_closes(self)
     }
     #[inline(always)]
     fn deliver(&mut self, r: &BlockResult) {

@@ -729,7 +729,8 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
     #[inline(never)]
     fn close_block(&mut self, counters: &Counters) {
         let core = &mut self.core;
-        if !core.block_due() {
+        // `block_continues` was false: the clock's test is known.
+        if !core.block_closes() {
             return;
         }
         if self.in_flight > 0 {

@@ -1270,6 +1270,16 @@ impl<T: SineTable> Controller<T> {
         true
     }
 
+    /// [`Self::block_due`] where [`Self::block_continues`] returned false (the clock at the
+    /// block's last tick, or blocks of one): its close branch without its test again.
+    #[inline(always)]
+    pub fn block_closes(&mut self) -> bool {
+        let last = self.now.last;
+        self.closed_steps = self.tick.wrapping_add(1);
+        self.tick = 0;
+        last > 0
+    }
+
     /// The sequencer's phase, and the status word's phase bits with it.
     #[inline(always)]
     fn set_phase(&mut self, p: Phase) {
