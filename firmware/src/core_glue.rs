@@ -105,11 +105,20 @@ pub trait LoopCore {
     /// The block clock's tick for the next step (call once before each step): true when it
     /// closes a block: deliver the estimator's result, then close the block.
     fn block_due(&mut self) -> bool;
+    /// [`Self::block_due`]'s usual case: the clock advanced and true where the step closes no
+    /// block; false, the clock as it was, where [`Self::block_due`] is to be called.
+    fn block_continues(&mut self) -> bool;
+    /// [`Self::block_due`] where [`Self::block_continues`] returned false.
+    fn block_closes(&mut self) -> bool;
     /// Adopts the estimator task's result.
     fn deliver(&mut self, r: &BlockResult);
     /// Closes the block (when [`Self::block_due`], before the step) and hands its header to
     /// `send` (the queue's enqueue); `None` when it is empty.
     fn close_block<R>(&mut self, send: impl FnOnce(Block) -> R) -> Option<R>;
+    /// [`Self::close_block`] in two: the block's samples (0: no header, nothing to send) ...
+    fn block_samples(&mut self) -> u32;
+    /// ... and its header (of `n` > 0 samples), taken.
+    fn header(&mut self, n: u32) -> Block;
     /// U, X, Y of the step just taken, in metres (telemetry).
     fn outputs_m(&self, out: &StepOut) -> [f32; 3];
     /// The finished tap or pixel as a telemetry frame (status bit [`RECORD_READY`]).
@@ -142,12 +151,28 @@ impl LoopCore for ActiveCore {
         visco_core::Controller::block_due(self)
     }
     #[inline(always)]
+    fn block_continues(&mut self) -> bool {
+        visco_core::Controller::block_continues(self)
+    }
+    #[inline(always)]
+    fn block_closes(&mut self) -> bool {
+        visco_core::Controller::block_closes(self)
+    }
+    #[inline(always)]
     fn deliver(&mut self, r: &BlockResult) {
         visco_core::Controller::deliver(self, r)
     }
     #[inline(always)]
     fn close_block<R>(&mut self, send: impl FnOnce(Block) -> R) -> Option<R> {
         visco_core::Controller::close_block(self, send)
+    }
+    #[inline(always)]
+    fn block_samples(&mut self) -> u32 {
+        visco_core::Controller::block_samples(self)
+    }
+    #[inline(always)]
+    fn header(&mut self, n: u32) -> Block {
+        visco_core::Controller::header(self, n)
     }
     #[inline(always)]
     fn outputs_m(&self, out: &StepOut) -> [f32; 3] {

@@ -315,6 +315,22 @@ pub trait EstimatorLink: SampleSink<Number> {
     /// Hands over a block header with the samples since the last one (and wakes the task);
     /// false when the block is lost.
     fn send(&mut self, b: Block) -> bool;
+    /// [`Self::send`] with the header written by `fill` (called once, also when the block is
+    /// lost) where the link keeps it.
+    #[inline(always)]
+    fn send_with(&mut self, fill: impl FnOnce(&mut Block)) -> bool {
+        let mut b = Block {
+            restart: None,
+            restart_watch: false,
+            epoch: 0,
+            target: visco_core::schedule::Target::Dive2,
+            skip: 0,
+            samples: 0,
+            tones: visco_core::schedule::ToneAhead::NONE,
+        };
+        fill(&mut b);
+        self.send(b)
+    }
     /// The next result, if the task has one.
     fn receive(&mut self) -> Option<BlockResult>;
     /// A new core (thread mode, both interrupts masked, the task's queues emptied): nothing
@@ -433,6 +449,30 @@ impl EstimatorLink for QueueLink<'_, '_> {
         }
         // Cannot be full: the queue holds every buffer. Were it full, the buffer would be
         // dropped (out of circulation) and the block counted as lost.
+        let ok = self.blocks.enqueue(full).is_ok();
+        (self.pend)();
+        ok
+    }
+    /// The header written straight into the buffer handed over (issue 14, round 19).
+    #[inline(always)]
+    fn send_with(&mut self, fill: impl FnOnce(&mut Block)) -> bool {
+        let lost = core::mem::take(&mut self.lost);
+        let Some(next) = self.free.dequeue() else {
+            // No free buffer: the block is lost whole (its header taken all the same), its
+            // buffer stages the next.
+            let mut b = self.stage.header;
+            fill(&mut b);
+            self.stage.n = 0;
+            return false;
+        };
+        next.n = 0;
+        let full = core::mem::replace(&mut self.stage, next);
+        fill(&mut full.header);
+        if lost != 0 {
+            // As in `send`.
+            full.header.skip = full.n;
+            full.header.samples = 0;
+        }
         let ok = self.blocks.enqueue(full).is_ok();
         (self.pend)();
         ok
@@ -641,27 +681,10 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
             bump(&counters.starved);
             return;
         };
-        if core.block_due() {
-            if self.in_flight > 0 {
-                // The schedule: the last block's result is adopted now, before this step.
-                while let Some(r) = self.estimator.receive() {
-                    core.deliver(&r);
-                    self.in_flight -= 1;
-                }
-                // One still out is late (a steady lag of a block counts at every close).
-                if self.in_flight > 0 {
-                    bump(&counters.estimator_late);
-                }
-            }
-            // The block closes at the start of this sample: straight into the queue.
-            let estimator = &mut self.estimator;
-            match core.close_block(|b| estimator.send(b)) {
-                Some(true) => self.in_flight += 1,
-                Some(false) => bump(&counters.blocks_dropped),
-                None => {}
-            }
+        if !core.block_continues() {
+            self.close_block(counters);
         }
-        let out = core.step(d, &mut self.estimator);
+        let out = self.core.step(d, &mut self.estimator);
         let dac_word = self.u_out.write(out.u_code);
         // Lateral DACs are written only when the setpoint moves (once per pixel in SVE):
         // three SPI writes per sample would not fit 1 MHz.
@@ -697,6 +720,41 @@ impl<A: Adc, U: UOutput, X: XyOutput, C: LoopCore, E: EstimatorLink> LoopState<A
             }
         }
         bump(&counters.samples);
+    }
+
+    /// A block close: the last block's result adopted, the block handed over. Out of line
+    /// (issue 14, round 19): once per block, and inlined it put a jump around itself and its
+    /// registers' spills on every sample's path.
+    #[cold]
+    #[inline(never)]
+    fn close_block(&mut self, counters: &Counters) {
+        let core = &mut self.core;
+        // `block_continues` was false: the clock's test is known.
+        if !core.block_closes() {
+            return;
+        }
+        if self.in_flight > 0 {
+            // The schedule: the last block's result is adopted now, before this step.
+            while let Some(r) = self.estimator.receive() {
+                core.deliver(&r);
+                self.in_flight -= 1;
+            }
+            // One still out is late (a steady lag of a block counts at every close).
+            if self.in_flight > 0 {
+                bump(&counters.estimator_late);
+            }
+        }
+        // The block closes at the start of this sample: straight into the queue, its header
+        // written in the buffer handed over.
+        let n = core.block_samples();
+        if n == 0 {
+            return;
+        }
+        if self.estimator.send_with(|h| *h = core.header(n)) {
+            self.in_flight += 1;
+        } else {
+            bump(&counters.blocks_dropped);
+        }
     }
 
     /// The index of the sample being stepped (since the source was last set).

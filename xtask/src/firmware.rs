@@ -1517,10 +1517,12 @@ pub const GOAL_SVE: f64 = 200.0;
 /// integer DAC codes (a re-bless): SVE 261.58 → 254.66; round 18 (the status word's bits
 /// in one word, the command slot in the loop's static, the stride mask beside the block
 /// clock, SVE's re-approach returning its bits; all bit-identical): DIVE 190.92 → 181.90,
-/// SVE 254.76 → 246.71.
-pub const CEILING_DIVE: f64 = 184.0;
+/// SVE 254.76 → 246.71; round 19 (the usual paths with the input known good, the block close
+/// out of line with its header written in place; all bit-identical): DIVE 181.90 → 176.92,
+/// SVE 246.71 → 242.81.
+pub const CEILING_DIVE: f64 = 179.0;
 /// See [`CEILING_DIVE`].
-pub const CEILING_SVE: f64 = 250.0;
+pub const CEILING_SVE: f64 = 246.0;
 /// Issue 14: instructions per sample with the estimator interrupt's share (measured 274.4 /
 /// 387.0 when last set, plus 1 %, after round 8: the task's w and φ only where a later pass
 /// reads them (DIVE −12.0) and SVE's usual block through the high-passes and the sums without
@@ -1547,14 +1549,14 @@ pub const CEILING_SVE: f64 = 250.0;
 /// per 2 µs (a re-bless): 274.5 → 273.0. Round 12: DIVE's prefilters four samples at a
 /// step in its estimating blocks at 1 MHz (a re-bless): 273.0 → 264.0. Round 15 (the loop
 /// interrupt, bit-identical): 263.6 → 251.9. Round 16 (the DAC grid, a re-bless): 251.9 →
-/// 249.9. Round 18 (bit-identical): 250.1 → 241.1.
-pub const CEILING_AVG_DIVE: f64 = 244.0;
+/// 249.9. Round 18 (bit-identical): 250.1 → 241.1. Round 19 (bit-identical): 241.1 → 236.1.
+pub const CEILING_AVG_DIVE: f64 = 239.0;
 /// See [`CEILING_AVG_DIVE`]. Round 9: SVE's information sums from one sample in 2 at 1 MHz
 /// (a re-bless, judged on the fault suite's paired means over 40 seeds): 387.0 → 378.6;
 /// round 10 (layout): 377.6; round 15 (the loop interrupt, bit-identical): 378.1 → 364.5;
 /// round 16 (the DAC grid, a re-bless): 364.5 → 360.5; its lateral ramp in codes: 353.5;
-/// round 18 (bit-identical): 353.6 → 345.5.
-pub const CEILING_AVG_SVE: f64 = 349.0;
+/// round 18 (bit-identical): 353.6 → 345.5; round 19 (bit-identical): 345.5 → 341.7.
+pub const CEILING_AVG_SVE: f64 = 346.0;
 /// See [`CEILING_AVG_DIVE`].
 pub const GOAL_AVG: f64 = 200.0;
 
@@ -1720,17 +1722,19 @@ pub const TABLE: [(Machine, Number, Estimator); 8] = [
 /// before issue 14's read-out sums per block and s²Z/Λ on demand).
 /// Round 10: the DIVE force limit once per 2 µs (its low-pass's 64-bit product every other
 /// sample): 552.1 → 516.7. Round 15 (the loop interrupt, bit-identical): 511.7 → 489.3.
-/// Round 18 (bit-identical): 495.6 → 479.2.
-pub const CEILING_Q32_M3_DIVE: f64 = 484.0;
+/// Round 18 (bit-identical): 495.6 → 479.2. Round 19 (bit-identical): 479.2 → 471.3.
+pub const CEILING_Q32_M3_DIVE: f64 = 477.0;
 /// See [`CEILING_Q32_M3_DIVE`]. Round 9 (SVE's sums at stride 2 at 1 MHz): 1 309.2 → 1 302.3;
 /// round 15: 1 303.2 → 1 297.5; round 16 (the lateral ramp in integer codes, where x took
-/// fixed-point products): 1 297.5 → 1 143.1; round 18: 1 131.0 → 1 117.1.
-pub const CEILING_Q32_M3_SVE: f64 = 1_129.0;
-/// See [`CEILING_Q32_M3_DIVE`]; the gradient estimator (round 15: 509.4 → 487.1).
-pub const CEILING_Q32_M3_GRADIENT_DIVE: f64 = 494.0;
+/// fixed-point products): 1 297.5 → 1 143.1; round 18: 1 131.0 → 1 117.1; round 19:
+/// 1 117.1 → 1 109.5.
+pub const CEILING_Q32_M3_SVE: f64 = 1_121.0;
+/// See [`CEILING_Q32_M3_DIVE`]; the gradient estimator (round 15: 509.4 → 487.1; round 19:
+/// 469.0).
+pub const CEILING_Q32_M3_GRADIENT_DIVE: f64 = 474.0;
 /// See [`CEILING_Q32_M3_DIVE`]; the gradient estimator (round 9: 1 307.4 → 1 301.4; round
-/// 15: 1 302.3 → 1 296.6; round 16: 1 142.4; round 18: 1 116.4).
-pub const CEILING_Q32_M3_GRADIENT_SVE: f64 = 1_128.0;
+/// 15: 1 302.3 → 1 296.6; round 16: 1 142.4; round 18: 1 116.4; round 19: 1 108.8).
+pub const CEILING_Q32_M3_GRADIENT_SVE: f64 = 1_120.0;
 
 /// Issue 8's accuracy goal: within this % of each property's maximum of the f64 reference.
 pub const FIXED_ERROR_GOAL_PCT: f64 = 0.5;
@@ -2264,7 +2268,12 @@ pub fn profile_image(img: &Image, window: &str, steps: u32, e: Estimator) -> Res
             mon.display()
         ),
     );
-    let spawned = spawn_image(img, None, "profile");
+    // Under `-icount` with the bench's period, as the bench: in real time the exec log slows
+    // QEMU so much that the timer's periods pile up, the loop interrupts run back to back and
+    // starve the estimator interrupt (issue 14, round 19: every block close found its result
+    // late and most found no free buffer, and most chunks of tones were late, so the profile
+    // counted paths the bench never takes).
+    let spawned = spawn_image(img, Some(0), "profile");
     std::env::remove_var("VISCO_QEMU_EXTRA");
     let (mut link, defmt) = spawned?;
     s.fw.send(&mut link).map_err(boxed)?;
@@ -2299,7 +2308,7 @@ pub fn profile_image(img: &Image, window: &str, steps: u32, e: Estimator) -> Res
     link.command_ok(&Cmd::Bench {
         mode: BenchMode::Continue { time_step: false },
         steps,
-        period_ticks: 20_000,
+        period_ticks: bench_period(img, expected_insns_per_tick(0)),
     })
     .map_err(io)?;
     monitor("log none")?;
@@ -2432,6 +2441,8 @@ fn interrupt_ranges(dis: &str) -> Vec<std::ops::Range<u32>> {
             || (name.starts_with("visco_core::") && !name.contains("config"))
             || name.starts_with("visco_firmware::core_config::")
             || name.starts_with("visco_firmware::core_number::")
+            // The loop's block close, out of line since issue 14, round 19.
+            || name.starts_with("visco_firmware::loop_body::")
             || name.starts_with("compiler_builtins::")
             || name.starts_with("__")
             || name.contains("memcpy")
@@ -2608,6 +2619,16 @@ pub fn itcm_check(elf: &Path) -> Result<Vec<String>> {
         if let (Some(from), Some(to)) = (find(at), find(target)) {
             if from != to {
                 edges[from].push(to);
+            }
+        }
+    }
+    // A long-branch thunk that the linker put in ITCM reaches its target by loading the PC,
+    // not by a branch the loop above follows (issue 14, round 19: an out-of-line function
+    // left in flash was reached through one unseen).
+    for f in 0..funcs.len() {
+        if let Some((_, target)) = funcs[f].2.split_once("LongThunk_") {
+            if let Some(to) = funcs.iter().position(|g| g.2 == target) {
+                edges[f].push(to);
             }
         }
     }

@@ -1256,6 +1256,30 @@ impl<T: SineTable> Controller<T> {
         }
     }
 
+    /// [`Self::block_due`]'s usual case alone: the block clock advanced and true, where the
+    /// next step does not close a block; false (the clock as it was) where it may, for the
+    /// caller to call [`Self::block_due`] then (issue 14, round 19: the firmware's block close
+    /// goes out of line whole, the usual sample falls through).
+    #[inline(always)]
+    pub fn block_continues(&mut self) -> bool {
+        let tick = self.tick;
+        if tick >= self.now.last {
+            return false;
+        }
+        self.tick = tick + 1;
+        true
+    }
+
+    /// [`Self::block_due`] where [`Self::block_continues`] returned false (the clock at the
+    /// block's last tick, or blocks of one): its close branch without its test again.
+    #[inline(always)]
+    pub fn block_closes(&mut self) -> bool {
+        let last = self.now.last;
+        self.closed_steps = self.tick.wrapping_add(1);
+        self.tick = 0;
+        last > 0
+    }
+
     /// The sequencer's phase, and the status word's phase bits with it.
     #[inline(always)]
     fn set_phase(&mut self, p: Phase) {
@@ -1529,7 +1553,11 @@ impl<T: SineTable> Controller<T> {
         // While a mode runs, every sample goes to the estimator task (its prefilters need an
         // unbroken signal): from the mode's step with what to do with it, else here.
         let mut fed = false;
-        let u_next = match self.hot {
+        // A sample the estimator may not use takes the general path, which makes the usual
+        // paths' tests itself: on those, the input is known good (issue 14, round 19: the
+        // input check's steady path, which sets it, then reaches them without a test of it).
+        let hot = if input_ok { self.hot } else { Hot::None };
+        let u_next = match hot {
             // The usual paths, dispatched by one byte (the same steps as through the mode's
             // and the phase's below).
             Hot::DiveDwell => {
@@ -1542,7 +1570,7 @@ impl<T: SineTable> Controller<T> {
                     t,
                     d,
                     z,
-                    input_ok,
+                    true,
                     self.force_check(),
                     &mut st,
                     sink,
@@ -1559,7 +1587,7 @@ impl<T: SineTable> Controller<T> {
                 // at it, with `next_boundary` and t set anew only where `sve_fast` is cleared).
                 self.sve.t = self.sve.t.wrapping_add(1);
                 let t = self.sve.t;
-                let u = self.sve_contact::<true>(t, d, z, input_ok, &mut st, sink, &mut fed);
+                let u = self.sve_contact::<true>(t, d, z, true, &mut st, sink, &mut fed);
                 if !fed {
                     self.feed(sink, z, T::ZERO, 0);
                 }
@@ -1668,14 +1696,31 @@ impl<T: SineTable> Controller<T> {
     /// takes samples between restarts: the target's.
     #[inline(always)]
     fn closing_block(&mut self) -> Option<Block<T>> {
-        // The closed block's samples handed over since its start or its last restart.
+        let n = self.block_samples();
+        if n == 0 {
+            return None;
+        }
+        Some(self.header(n))
+    }
+
+    /// The samples of the block just closed (when [`Self::block_due`]): handed over since its
+    /// start or its last restart; the counts start again. With none, no header is taken: its
+    /// restart and the samples to discard wait for the next block that has samples.
+    #[inline(always)]
+    pub fn block_samples(&mut self) -> u32 {
         let n = self.handed(self.closed_steps);
         self.block_from = 0;
         self.unfed = 0;
         self.carry = 0;
-        if n == 0 {
-            return None;
-        }
+        n
+    }
+
+    /// The header of the block just closed, of its `n` samples ([`Self::block_samples`], not
+    /// 0), with a pending restart and the samples to discard before it: taken (the firmware
+    /// writes it straight into the buffer it hands over, issue 14, round 19: built first, it
+    /// was spilled to the stack while a free buffer was taken, and copied).
+    #[inline(always)]
+    pub fn header(&mut self, n: u32) -> Block<T> {
         let b = Block {
             restart: self.pending_restart.take(),
             restart_watch: core::mem::take(&mut self.pending_watch),
@@ -1694,7 +1739,7 @@ impl<T: SineTable> Controller<T> {
             },
         };
         self.skip_n = 0;
-        Some(b)
+        b
     }
 
     /// A new tap or scan: the estimator at θ̂₀ with P₀, the divergence watch restarted.
