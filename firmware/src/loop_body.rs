@@ -269,19 +269,23 @@ pub struct SampleBlock {
     pub samples: [Sample; BLOCK_MAX],
 }
 
+/// A block header before it is filled: an empty buffer's, and what [`EstimatorLink::send_with`]
+/// hands its `fill`.
+const EMPTY_HEADER: Block = Block {
+    restart: None,
+    restart_watch: false,
+    epoch: 0,
+    target: visco_core::schedule::Target::Dive2,
+    skip: 0,
+    samples: 0,
+    tones: visco_core::schedule::ToneAhead::NONE,
+};
+
 impl SampleBlock {
     /// Empty, before the first sample.
     pub const fn new() -> Self {
         Self {
-            header: Block {
-                restart: None,
-                restart_watch: false,
-                epoch: 0,
-                target: visco_core::schedule::Target::Dive2,
-                skip: 0,
-                samples: 0,
-                tones: visco_core::schedule::ToneAhead::NONE,
-            },
+            header: EMPTY_HEADER,
             n: 0,
             samples: [Sample {
                 z: <Number as visco_core::Real>::ZERO,
@@ -319,15 +323,7 @@ pub trait EstimatorLink: SampleSink<Number> {
     /// lost) where the link keeps it.
     #[inline(always)]
     fn send_with(&mut self, fill: impl FnOnce(&mut Block)) -> bool {
-        let mut b = Block {
-            restart: None,
-            restart_watch: false,
-            epoch: 0,
-            target: visco_core::schedule::Target::Dive2,
-            skip: 0,
-            samples: 0,
-            tones: visco_core::schedule::ToneAhead::NONE,
-        };
+        let mut b = EMPTY_HEADER;
         fill(&mut b);
         self.send(b)
     }
