@@ -148,7 +148,7 @@ fn refsim_interference_waves_are_found_and_transparent() {
         );
         let report = identify(
             &path,
-            &Options::new(&out.path().join(format!("{stem}.json"))),
+            &Options::new(out.path().join(format!("{stem}.json"))),
         )
         .unwrap_or_else(|e| panic!("{e}"));
         let Outcome::ForceCurve(fit) = report.outcome else {
@@ -184,8 +184,9 @@ fn refsim_interference_waves_are_found_and_transparent() {
                 .collect();
         let mut clean = rec.clone();
         let tau = std::f64::consts::TAU;
-        for i in 0..clean.len() {
-            clean.d_m[i] -= a_true * (tau * (rec.u_m[i] - d_true[i]) / p_true + phase).sin();
+        assert_eq!(d_true.len(), clean.d_m.len(), "the truth CSV's rows");
+        for ((d, &u), &dt) in clean.d_m.iter_mut().zip(&rec.u_m).zip(&d_true) {
+            *d -= a_true * (tau * (u - dt) / p_true + phase).sin();
         }
         let opts = visco::diagnose::search::SearchOptions::default();
         let with = visco::diagnose::report::analyse(&rec, &opts, |_| ()).unwrap();

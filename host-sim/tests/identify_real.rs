@@ -313,7 +313,7 @@ fn check_plausible(name: &str, rec: &Recording, f: &ForceCurveFit, j: &Json) {
             diff <= 1e-9 * range,
             "{name}: −K·D vs vendor force: {diff} of {range}"
         );
-        assert_eq!(at(&j, "vendor_force.matches"), Some(&Json::Bool(true)));
+        assert_eq!(at(j, "vendor_force.matches"), Some(&Json::Bool(true)));
     }
     // The fit: the approach (fitted) is reproduced to a few % of the deflection range.
     assert!(
@@ -321,8 +321,8 @@ fn check_plausible(name: &str, rec: &Recording, f: &ForceCurveFit, j: &Json) {
         "{name}: approach misfit"
     );
     check_dynamics(name, rec, f, j);
-    assert!(at(&j, "taps.0.k_n_per_m").and_then(Json::as_f64).unwrap() > 0.0);
-    assert!(at(&j, "rms_misfit_m").and_then(Json::as_f64).is_some());
+    assert!(at(j, "taps.0.k_n_per_m").and_then(Json::as_f64).unwrap() > 0.0);
+    assert!(at(j, "rms_misfit_m").and_then(Json::as_f64).is_some());
     assert!(k > 0.0);
 }
 
@@ -333,7 +333,7 @@ fn check_dynamics(name: &str, rec: &Recording, f: &ForceCurveFit, j: &Json) -> f
     let k = rec.meta.cantilever_k_n_per_m;
     let worst = f.dynamics.inertial_n.max(f.dynamics.damping_n);
     let ratio = worst / k / f.baseline.noise_m;
-    let reported = at(&j, "cantilever_dynamics.to_noise")
+    let reported = at(j, "cantilever_dynamics.to_noise")
         .and_then(Json::as_f64)
         .unwrap();
     println!(
@@ -351,7 +351,7 @@ fn check_dynamics(name: &str, rec: &Recording, f: &ForceCurveFit, j: &Json) -> f
         "{name}: {reported} vs {ratio}"
     );
     assert!(
-        (at(&j, "cantilever_dynamics.to_force_range")
+        (at(j, "cantilever_dynamics.to_force_range")
             .and_then(Json::as_f64)
             .unwrap()
             / (worst / f.force_range_n)
@@ -360,7 +360,7 @@ fn check_dynamics(name: &str, rec: &Recording, f: &ForceCurveFit, j: &Json) -> f
             < 1e-12
     );
     assert_eq!(
-        at(&j, "cantilever_dynamics.neglected"),
+        at(j, "cantilever_dynamics.neglected"),
         Some(&Json::Bool(ratio < 1.0)),
         "{name}: neglected iff the dynamics are below the noise"
     );
@@ -552,7 +552,7 @@ fn identify_with_wave(
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("wavy.csv");
     rec.write(&path).unwrap();
-    let report = identify(&path, &Options::new(&dir.path().join("wavy.json")))
+    let report = identify(&path, &Options::new(dir.path().join("wavy.json")))
         .unwrap_or_else(|e| panic!("{e}"));
     let Outcome::ForceCurve(fit) = report.outcome else {
         panic!("not a force curve")
@@ -656,9 +656,7 @@ fn a_deflection_wider_than_the_travel_names_the_spring_constant() {
         "{e}"
     );
     // diagnose refuses it for the same reason.
-    let e = visco::diagnose::problem::Problem::new(&rec)
-        .err()
-        .expect("diagnose refuses it");
+    let e = visco::diagnose::problem::Problem::new(&rec).expect_err("diagnose refuses it");
     assert!(
         e.to_string()
             .contains("bends at most as far as its base moves"),

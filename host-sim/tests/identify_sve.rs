@@ -192,11 +192,11 @@ fn sve_scan_of_a_tilted_bed_gives_its_maps() {
         ("k_element_n_per_m", "scan_k_element.csv"),
     ] {
         let m = at(&j, &format!("maps.{name}")).unwrap();
-        assert_eq!(at(&m, "valid_pixels").and_then(Json::as_f64), Some(20.0));
-        assert!(at(&m, "mean").and_then(Json::as_f64).unwrap().is_finite());
+        assert_eq!(at(m, "valid_pixels").and_then(Json::as_f64), Some(20.0));
+        assert!(at(m, "mean").and_then(Json::as_f64).unwrap().is_finite());
         let path = dir.path().join(file);
         assert_eq!(
-            at(&m, "file").and_then(Json::as_str),
+            at(m, "file").and_then(Json::as_str),
             Some(path.to_str().unwrap())
         );
         let text = std::fs::read_to_string(&path).unwrap();

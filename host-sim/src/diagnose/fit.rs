@@ -648,6 +648,7 @@ mod tests {
     /// unconstrained column, `lsq_linear(method="bvls", tol=1e-15)`, printed with `%.17e`.
     /// Tolerance 1e-10 relative: the 1e-12 ridge moves β by ~1e-12·κ², κ ≈ 4 here.
     #[test]
+    #[allow(clippy::excessive_precision)] // scipy's values as printed, digit for digit
     fn nonnegative_least_squares_matches_scipy_where_dropping_the_first_negative_fails() {
         #[rustfmt::skip]
         let rows: [[f64; 3]; 6] = [

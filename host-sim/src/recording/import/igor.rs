@@ -149,9 +149,9 @@ pub fn import(path: &Path, opts: &ImportOptions, warnings: &mut Vec<String>) -> 
     let data_units = rd.size(16, "data units", path)?;
     let mut dim_units = 0usize;
     let mut dim_labels = [0usize; 4];
-    for d in 0..4 {
+    for (d, label) in dim_labels.iter_mut().enumerate() {
         dim_units += rd.size(20 + 4 * d, "dimension units", path)?;
-        dim_labels[d] = rd.size(36 + 4 * d, "dimension labels", path)?;
+        *label = rd.size(36 + 4 * d, "dimension labels", path)?;
     }
     let wh = BIN_HEADER;
     let kind = rd.i16(wh + 16).unwrap_or(0);
@@ -353,7 +353,7 @@ pub fn import(path: &Path, opts: &ImportOptions, warnings: &mut Vec<String>) -> 
         .map(|j| match sense.get(j).copied() {
             Some(s) if s > 0.0 => "extend",
             Some(s) if s < 0.0 => "retract",
-            Some(s) if s == 0.0 => "pause",
+            Some(0.0) => "pause", // ±0 (a float pattern matches by ==), not NaN
             _ => "other",
         })
         .collect();

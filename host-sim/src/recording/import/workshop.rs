@@ -195,7 +195,7 @@ fn import_bytes(
     if bytes.is_empty() {
         return Err(RecordingError::new(path, ErrorKind::Vendor, "empty file").at_line(1));
     }
-    let text = String::from_utf8_lossy(&bytes);
+    let text = String::from_utf8_lossy(bytes);
     let lines: Vec<&str> = text.split('\n').map(|l| l.trim_end_matches('\r')).collect();
     if !lines
         .first()
